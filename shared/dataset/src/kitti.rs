@@ -1,0 +1,215 @@
+//! KITTI odometry sequence layout.
+//!
+//! ```text
+//! sequences/NN/calib.txt      "P0: 12 numbers" (3x4 projection, row-major)
+//! sequences/NN/times.txt      one timestamp (s) per frame
+//! sequences/NN/image_0/*.png  grayscale left camera (image_2 for colour)
+//! poses/NN.txt                ground truth, when available
+//! ```
+
+use crate::error::{parse_numbers, DatasetError};
+use crate::trajectory::{read_trajectory, Trajectory, TrajectoryFormat};
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+
+/// Pinhole intrinsics of the left camera, from the `P0:` row of `calib.txt`.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Calibration {
+    /// Focal length in x (pixels).
+    pub fx: f64,
+    /// Focal length in y (pixels).
+    pub fy: f64,
+    /// Principal point x (pixels).
+    pub cx: f64,
+    /// Principal point y (pixels).
+    pub cy: f64,
+}
+
+impl Calibration {
+    /// Reads the `P0:` line of a KITTI `calib.txt`.
+    pub fn read_kitti(path: &Path) -> Result<Self, DatasetError> {
+        let f = std::fs::File::open(path).map_err(|e| DatasetError::io(path, e))?;
+        for (i, line) in BufReader::new(f).lines().enumerate() {
+            let line = line.map_err(|e| DatasetError::io(path, e))?;
+            let Some(rest) = line.trim().strip_prefix("P0:") else {
+                continue;
+            };
+            let fields: Vec<&str> = rest.split_whitespace().collect();
+            if fields.len() != 12 {
+                return Err(DatasetError::parse(
+                    path,
+                    i + 1,
+                    format!(
+                        "P0 has {} numbers, expected 12 (3x4 projection matrix)",
+                        fields.len()
+                    ),
+                ));
+            }
+            let v = parse_numbers(&fields, path, i + 1)?;
+            if v[0] <= 0.0 || v[5] <= 0.0 {
+                return Err(DatasetError::parse(
+                    path,
+                    i + 1,
+                    "P0 focal lengths must be positive",
+                ));
+            }
+            return Ok(Self {
+                fx: v[0],
+                fy: v[5],
+                cx: v[2],
+                cy: v[6],
+            });
+        }
+        Err(DatasetError::invalid(
+            path,
+            "no 'P0:' line; a KITTI calib.txt needs 'P0: fx 0 cx 0 0 fy cy 0 0 0 1 0'",
+        ))
+    }
+
+    /// The 3x3 camera matrix K.
+    pub fn k(&self) -> nalgebra::Matrix3<f64> {
+        nalgebra::Matrix3::new(self.fx, 0.0, self.cx, 0.0, self.fy, self.cy, 0.0, 0.0, 1.0)
+    }
+}
+
+/// One KITTI odometry sequence on disk.
+#[derive(Debug, Clone)]
+pub struct KittiSequence {
+    /// The sequence directory (`.../sequences/NN`).
+    pub dir: PathBuf,
+    /// Left-camera intrinsics.
+    pub calib: Calibration,
+    /// Timestamp of each frame, seconds.
+    pub times: Vec<f64>,
+    /// Image file of each frame, in order.
+    pub images: Vec<PathBuf>,
+}
+
+impl KittiSequence {
+    /// Opens `dir` (a `sequences/NN` directory), using `image_0` (or `image_2` if absent).
+    ///
+    /// Checks that `times.txt` has one line per image.
+    pub fn open(dir: &Path) -> Result<Self, DatasetError> {
+        if !dir.is_dir() {
+            return Err(DatasetError::invalid(dir, "sequence directory not found"));
+        }
+        let calib = Calibration::read_kitti(&dir.join("calib.txt"))?;
+        let times_path = dir.join("times.txt");
+        let times = read_times(&times_path)?;
+        let img_dir = ["image_0", "image_2"]
+            .iter()
+            .map(|d| dir.join(d))
+            .find(|d| d.is_dir())
+            .ok_or_else(|| {
+                DatasetError::invalid(dir, "no image_0/ or image_2/ directory with the frames")
+            })?;
+        let mut images: Vec<PathBuf> = std::fs::read_dir(&img_dir)
+            .map_err(|e| DatasetError::io(&img_dir, e))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("png")))
+            .collect();
+        images.sort();
+        if images.is_empty() {
+            return Err(DatasetError::invalid(&img_dir, "no PNG frames found"));
+        }
+        if images.len() != times.len() {
+            return Err(DatasetError::invalid(
+                &times_path,
+                format!(
+                    "{} timestamps but {} images in {}",
+                    times.len(),
+                    images.len(),
+                    img_dir.display()
+                ),
+            ));
+        }
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            calib,
+            times,
+            images,
+        })
+    }
+
+    /// Sequence name (the directory name, e.g. `00`).
+    pub fn name(&self) -> String {
+        self.dir
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    }
+
+    /// The conventional ground-truth file `../../poses/NN.txt`, if it exists.
+    pub fn default_ground_truth(&self) -> Option<PathBuf> {
+        let p = self
+            .dir
+            .parent()?
+            .parent()?
+            .join("poses")
+            .join(format!("{}.txt", self.name()));
+        p.is_file().then_some(p)
+    }
+
+    /// Reads ground truth (KITTI poses) and attaches this sequence's timestamps; the
+    /// number of poses must equal the number of frames.
+    pub fn read_ground_truth(&self, path: &Path) -> Result<Trajectory, DatasetError> {
+        let mut gt = read_trajectory(path, TrajectoryFormat::Kitti)?;
+        if gt.len() != self.times.len() {
+            return Err(DatasetError::invalid(
+                path,
+                format!(
+                    "{} poses but the sequence has {} frames",
+                    gt.len(),
+                    self.times.len()
+                ),
+            ));
+        }
+        gt.stamps = Some(self.times.clone());
+        Ok(gt)
+    }
+}
+
+/// Reads a `times.txt`: one number (seconds) per line.
+pub fn read_times(path: &Path) -> Result<Vec<f64>, DatasetError> {
+    let f = std::fs::File::open(path).map_err(|e| DatasetError::io(path, e))?;
+    let mut out = Vec::new();
+    for (i, line) in BufReader::new(f).lines().enumerate() {
+        let line = line.map_err(|e| DatasetError::io(path, e))?;
+        let fields: Vec<&str> = line.split_whitespace().collect();
+        if fields.is_empty() {
+            continue;
+        }
+        if fields.len() != 1 {
+            return Err(DatasetError::parse(
+                path,
+                i + 1,
+                format!("found {} columns, expected 1 timestamp", fields.len()),
+            ));
+        }
+        out.extend(parse_numbers(&fields, path, i + 1)?);
+    }
+    if out.is_empty() {
+        return Err(DatasetError::Empty {
+            path: path.to_path_buf(),
+            expected: "one timestamp (seconds) a line".into(),
+        });
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn calibration_without_p0_is_a_clear_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("calib.txt");
+        std::fs::write(&p, "P1: 1 0 0 0 0 1 0 0 0 0 1 0\n").unwrap();
+        let err = Calibration::read_kitti(&p).unwrap_err().to_string();
+        assert!(err.contains("no 'P0:' line"), "{err}");
+        std::fs::write(&p, "P0: 718.8 0 607.1 0 0 718.8 185.2 0 0 0 1 0\n").unwrap();
+        let c = Calibration::read_kitti(&p).unwrap();
+        assert_eq!((c.fx, c.cy), (718.8, 185.2));
+    }
+}

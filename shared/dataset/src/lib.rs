@@ -1,0 +1,19 @@
+//! Dataset and trajectory IO.
+//!
+//! * Trajectories: KITTI poses (12 numbers a line, 3x4 `T_world_cam` row-major), TUM
+//!   (`t x y z qx qy qz qw`), EuRoC ground-truth CSV (`t[ns], p, q_wxyz, ...`).
+//! * KITTI odometry sequences: `calib.txt` (`P0:`), `times.txt`, `image_0/` or `image_2/`.
+//!
+//! Readers stream line by line and report the file and 1-based line of the first bad value.
+//! Writers print every number in Rust's shortest round-trip form, so reading a written file
+//! gives back the same bits.
+
+mod error;
+mod kitti;
+mod trajectory;
+
+pub use error::DatasetError;
+pub use kitti::{read_times, Calibration, KittiSequence};
+pub use trajectory::{
+    read_trajectory, write_trajectory, PoseLines, Trajectory, TrajectoryFormat, ROTATION_TOLERANCE,
+};

@@ -1,0 +1,409 @@
+//! Trajectory files: KITTI, TUM and EuRoC.
+
+use crate::error::{parse_numbers, DatasetError};
+use std::fmt::Write as _;
+use std::io::{BufRead, BufReader, BufWriter, Write};
+use std::path::{Path, PathBuf};
+use supermvo_geometry::{check_orthonormal, Mat3, Pose, Vec3};
+
+/// Largest accepted deviation of `R^T R` from identity (and of det R from 1) in a file.
+///
+/// KITTI files print rotations with 7 significant digits (deviation ~1e-6); anything much
+/// larger is not a rotation.
+pub const ROTATION_TOLERANCE: f64 = 1e-4;
+
+/// On-disk trajectory formats.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TrajectoryFormat {
+    /// KITTI odometry poses: 12 numbers a line (3x4 row-major), no timestamps.
+    Kitti,
+    /// TUM RGB-D: `timestamp tx ty tz qx qy qz qw`.
+    Tum,
+    /// EuRoC ground-truth CSV: `timestamp_ns, px, py, pz, qw, qx, qy, qz, ...` (read only).
+    Euroc,
+}
+
+impl TrajectoryFormat {
+    fn expected(self) -> &'static str {
+        match self {
+            Self::Kitti => "12 numbers a line (3x4 pose matrix, row-major)",
+            Self::Tum => "8 numbers a line: timestamp tx ty tz qx qy qz qw",
+            Self::Euroc => "at least 8 comma-separated numbers a line: timestamp_ns, px, py, pz, qw, qx, qy, qz",
+        }
+    }
+}
+
+impl std::fmt::Display for TrajectoryFormat {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Kitti => "kitti",
+            Self::Tum => "tum",
+            Self::Euroc => "euroc",
+        })
+    }
+}
+
+/// A sequence of poses `T_world_cam`, with timestamps in seconds when the format has them.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Trajectory {
+    /// Timestamps in seconds, one per pose (None for KITTI pose files).
+    pub stamps: Option<Vec<f64>>,
+    /// Poses.
+    pub poses: Vec<Pose>,
+}
+
+impl Trajectory {
+    /// Number of poses.
+    pub fn len(&self) -> usize {
+        self.poses.len()
+    }
+
+    /// True when there are no poses.
+    pub fn is_empty(&self) -> bool {
+        self.poses.is_empty()
+    }
+
+    /// Camera positions.
+    pub fn positions(&self) -> Vec<Vec3> {
+        self.poses.iter().map(|p| p.t).collect()
+    }
+
+    /// Keeps only the poses (and stamps) at `ids`, in that order.
+    pub fn select(&self, ids: &[usize]) -> Trajectory {
+        Trajectory {
+            stamps: self
+                .stamps
+                .as_ref()
+                .map(|s| ids.iter().map(|&i| s[i]).collect()),
+            poses: ids.iter().map(|&i| self.poses[i]).collect(),
+        }
+    }
+
+    /// Total length of the path through the positions.
+    pub fn path_length(&self) -> f64 {
+        self.poses
+            .windows(2)
+            .map(|w| (w[1].t - w[0].t).norm())
+            .sum()
+    }
+}
+
+/// Streaming reader: yields `(stamp, pose)` one data line at a time.
+#[derive(Debug)]
+pub struct PoseLines<R> {
+    reader: R,
+    path: PathBuf,
+    format: TrajectoryFormat,
+    line_no: usize,
+    buf: String,
+}
+
+impl PoseLines<BufReader<std::fs::File>> {
+    /// Opens a trajectory file for streaming.
+    pub fn open(path: &Path, format: TrajectoryFormat) -> Result<Self, DatasetError> {
+        let f = std::fs::File::open(path).map_err(|e| DatasetError::io(path, e))?;
+        Ok(Self::new(BufReader::new(f), path, format))
+    }
+}
+
+impl<R: BufRead> PoseLines<R> {
+    /// Streams poses from any buffered reader; `path` is used in error messages.
+    pub fn new(reader: R, path: &Path, format: TrajectoryFormat) -> Self {
+        Self {
+            reader,
+            path: path.to_path_buf(),
+            format,
+            line_no: 0,
+            buf: String::new(),
+        }
+    }
+
+    fn parse_line(&self, line: &str) -> Result<(Option<f64>, Pose), DatasetError> {
+        let (p, n) = (&self.path, self.line_no);
+        let fields: Vec<&str> = match self.format {
+            TrajectoryFormat::Euroc => line.split(',').collect(),
+            _ => line.split_whitespace().collect(),
+        };
+        let count_ok = match self.format {
+            TrajectoryFormat::Kitti => fields.len() == 12,
+            TrajectoryFormat::Tum => fields.len() == 8,
+            TrajectoryFormat::Euroc => fields.len() >= 8,
+        };
+        if !count_ok {
+            return Err(DatasetError::parse(
+                p,
+                n,
+                format!(
+                    "found {} columns, expected {} ({} format)",
+                    fields.len(),
+                    self.format.expected(),
+                    self.format
+                ),
+            ));
+        }
+        let v = parse_numbers(&fields, p, n)?;
+        match self.format {
+            TrajectoryFormat::Kitti => {
+                let r = Mat3::new(v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10]);
+                check_orthonormal(&r, ROTATION_TOLERANCE)
+                    .map_err(|e| DatasetError::parse(p, n, e.to_string()))?;
+                Ok((None, Pose::new(r, Vec3::new(v[3], v[7], v[11]))))
+            }
+            TrajectoryFormat::Tum | TrajectoryFormat::Euroc => {
+                let (stamp, t, (w, x, y, z)) = if self.format == TrajectoryFormat::Tum {
+                    (v[0], Vec3::new(v[1], v[2], v[3]), (v[7], v[4], v[5], v[6]))
+                } else {
+                    (
+                        v[0] / 1e9,
+                        Vec3::new(v[1], v[2], v[3]),
+                        (v[4], v[5], v[6], v[7]),
+                    )
+                };
+                let qn = (w * w + x * x + y * y + z * z).sqrt();
+                if (qn - 1.0).abs() > 1e-2 {
+                    return Err(DatasetError::parse(
+                        p,
+                        n,
+                        format!("quaternion has norm {qn:.6}, expected a unit quaternion (rotation not orthonormal)"),
+                    ));
+                }
+                let pose = Pose::from_quaternion(w, x, y, z, t)
+                    .ok_or_else(|| DatasetError::parse(p, n, "quaternion is zero"))?;
+                Ok((Some(stamp), pose))
+            }
+        }
+    }
+}
+
+impl<R: BufRead> Iterator for PoseLines<R> {
+    type Item = Result<(Option<f64>, Pose), DatasetError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        loop {
+            self.buf.clear();
+            self.line_no += 1;
+            match self.reader.read_line(&mut self.buf) {
+                Ok(0) => return None,
+                Ok(_) => {}
+                Err(e) => return Some(Err(DatasetError::io(&self.path, e))),
+            }
+            let line = self.buf.trim();
+            if line.is_empty() || line.starts_with('#') {
+                continue;
+            }
+            let line = line.to_owned();
+            return Some(self.parse_line(&line));
+        }
+    }
+}
+
+/// Reads a whole trajectory file.
+pub fn read_trajectory(path: &Path, format: TrajectoryFormat) -> Result<Trajectory, DatasetError> {
+    let mut stamps = Vec::new();
+    let mut poses = Vec::new();
+    for item in PoseLines::open(path, format)? {
+        let (stamp, pose) = item?;
+        if let Some(s) = stamp {
+            stamps.push(s);
+        }
+        poses.push(pose);
+    }
+    if poses.is_empty() {
+        return Err(DatasetError::Empty {
+            path: path.to_path_buf(),
+            expected: format.expected().to_string(),
+        });
+    }
+    let stamps = (format != TrajectoryFormat::Kitti).then_some(stamps);
+    Ok(Trajectory { stamps, poses })
+}
+
+/// Formats one trajectory line in the given format.
+fn format_line(
+    out: &mut String,
+    format: TrajectoryFormat,
+    stamp: Option<f64>,
+    p: &Pose,
+) -> Result<(), std::fmt::Error> {
+    match format {
+        TrajectoryFormat::Kitti => {
+            let r = &p.r;
+            writeln!(
+                out,
+                "{} {} {} {} {} {} {} {} {} {} {} {}",
+                r[(0, 0)],
+                r[(0, 1)],
+                r[(0, 2)],
+                p.t.x,
+                r[(1, 0)],
+                r[(1, 1)],
+                r[(1, 2)],
+                p.t.y,
+                r[(2, 0)],
+                r[(2, 1)],
+                r[(2, 2)],
+                p.t.z
+            )
+        }
+        TrajectoryFormat::Tum | TrajectoryFormat::Euroc => {
+            let q = p.quaternion();
+            writeln!(
+                out,
+                "{} {} {} {} {} {} {} {}",
+                stamp.unwrap_or(0.0),
+                p.t.x,
+                p.t.y,
+                p.t.z,
+                q.i,
+                q.j,
+                q.k,
+                q.w
+            )
+        }
+    }
+}
+
+/// Writes a trajectory as KITTI or TUM. Numbers use the shortest representation that
+/// parses back to the same `f64`, so KITTI files round-trip bit for bit, and TUM files
+/// keep stamps and positions bit for bit (rotations go through a unit quaternion).
+pub fn write_trajectory(
+    path: &Path,
+    format: TrajectoryFormat,
+    traj: &Trajectory,
+) -> Result<(), DatasetError> {
+    if format == TrajectoryFormat::Euroc {
+        return Err(DatasetError::invalid(
+            path,
+            "writing EuRoC CSV is not supported; write TUM instead",
+        ));
+    }
+    if format == TrajectoryFormat::Tum && traj.stamps.is_none() {
+        return Err(DatasetError::invalid(
+            path,
+            "TUM format needs timestamps, but this trajectory has none",
+        ));
+    }
+    let f = std::fs::File::create(path).map_err(|e| DatasetError::io(path, e))?;
+    let mut w = BufWriter::new(f);
+    let mut line = String::with_capacity(256);
+    for (i, p) in traj.poses.iter().enumerate() {
+        line.clear();
+        let stamp = traj.stamps.as_ref().and_then(|s| s.get(i).copied());
+        format_line(&mut line, format, stamp, p)
+            .map_err(|_| DatasetError::invalid(path, "formatting a pose failed"))?;
+        w.write_all(line.as_bytes())
+            .map_err(|e| DatasetError::io(path, e))?;
+    }
+    w.flush().map_err(|e| DatasetError::io(path, e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::Cursor;
+
+    fn parse(
+        text: &str,
+        format: TrajectoryFormat,
+    ) -> Result<Vec<(Option<f64>, Pose)>, DatasetError> {
+        PoseLines::new(Cursor::new(text.to_string()), Path::new("mem.txt"), format).collect()
+    }
+
+    #[test]
+    fn errors_name_file_and_line() {
+        let good = "1 0 0 0 0 1 0 0 0 0 1 0\n";
+        let err = parse(
+            &format!("{good}# comment\n1 0 0 0 0 1 0 0 0 0 1\n"),
+            TrajectoryFormat::Kitti,
+        )
+        .unwrap_err();
+        assert_eq!(err.to_string(), "mem.txt:3: found 11 columns, expected 12 numbers a line (3x4 pose matrix, row-major) (kitti format)");
+        let err = parse("1 0 0 0 0 1 0 x 0 0 1 0\n", TrajectoryFormat::Kitti).unwrap_err();
+        assert!(
+            err.to_string()
+                .starts_with("mem.txt:1: column 8: 'x' is not a number"),
+            "{err}"
+        );
+        let err = parse("0.0 1 2 NaN 0 0 0 1\n", TrajectoryFormat::Tum).unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("mem.txt:1: column 4: value 'NaN' is not finite"),
+            "{err}"
+        );
+        let err = parse("2 0 0 0 0 1 0 0 0 0 1 0\n", TrajectoryFormat::Kitti).unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("mem.txt:1: rotation is not orthonormal"),
+            "{err}"
+        );
+        let err = parse("0.0 1 2 3 0 0 0 2\n", TrajectoryFormat::Tum).unwrap_err();
+        assert!(
+            err.to_string().contains("quaternion has norm 2.000000"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn euroc_stamps_are_nanoseconds() {
+        let rows = parse(
+            "#timestamp,x\n1500000000,1,2,3,1,0,0,0,9,9\n",
+            TrajectoryFormat::Euroc,
+        )
+        .unwrap();
+        assert_eq!(rows[0].0, Some(1.5));
+        assert_eq!(rows[0].1.t, Vec3::new(1.0, 2.0, 3.0));
+    }
+
+    #[test]
+    fn kitti_and_tum_round_trip() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut poses = Vec::new();
+        for i in 0..50 {
+            let a = i as f64 * 0.1;
+            let p = Pose::from_quaternion(
+                a.cos(),
+                0.1 * a,
+                a.sin(),
+                -0.3,
+                Vec3::new(a * 1.1e3, -a / 3.0, 1e-7 * a),
+            )
+            .unwrap();
+            poses.push(p);
+        }
+        let stamps: Vec<f64> = (0..50).map(|i| 1.4e9 + i as f64 * 0.1).collect();
+        let traj = Trajectory {
+            stamps: Some(stamps),
+            poses,
+        };
+        let k = dir.path().join("k.txt");
+        write_trajectory(&k, TrajectoryFormat::Kitti, &traj).unwrap();
+        let back = read_trajectory(&k, TrajectoryFormat::Kitti).unwrap();
+        assert_eq!(back.poses, traj.poses, "KITTI must round-trip bit for bit");
+        let t = dir.path().join("t.txt");
+        write_trajectory(&t, TrajectoryFormat::Tum, &traj).unwrap();
+        let back = read_trajectory(&t, TrajectoryFormat::Tum).unwrap();
+        assert_eq!(back.stamps, traj.stamps);
+        for (a, b) in back.poses.iter().zip(&traj.poses) {
+            assert_eq!(a.t, b.t);
+            assert!((a.r - b.r).abs().max() < 1e-15);
+        }
+        let t2 = dir.path().join("t2.txt");
+        write_trajectory(&t2, TrajectoryFormat::Tum, &back).unwrap();
+        let again = read_trajectory(&t2, TrajectoryFormat::Tum).unwrap();
+        assert_eq!(again.stamps, back.stamps);
+        for (a, b) in again.poses.iter().zip(&back.poses) {
+            assert_eq!(a.t, b.t);
+            assert!((a.r - b.r).abs().max() < 1e-15);
+        }
+    }
+
+    #[test]
+    fn empty_file_is_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("e.txt");
+        std::fs::write(&p, "# only a comment\n\n").unwrap();
+        let err = read_trajectory(&p, TrajectoryFormat::Tum).unwrap_err();
+        assert!(err.to_string().contains("file is empty"), "{err}");
+    }
+}

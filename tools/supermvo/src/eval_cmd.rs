@@ -1,0 +1,228 @@
+//! `supermvo eval`.
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, ValueEnum};
+use std::path::{Path, PathBuf};
+use supermvo_config::Config;
+use supermvo_dataset::{read_trajectory, TrajectoryFormat};
+use supermvo_eval::{evaluate, DeltaUnit, Evaluation, Stats};
+use supermvo_geometry::AlignmentKind;
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum FormatArg {
+    Kitti,
+    Tum,
+    Euroc,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum AlignArg {
+    None,
+    Se3,
+    Sim3,
+    Scale,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum UnitArg {
+    Frames,
+    Meters,
+}
+
+/// Arguments of `supermvo eval`.
+#[derive(Debug, Args)]
+pub struct EvalArgs {
+    /// Ground-truth trajectory.
+    #[arg(long)]
+    gt: PathBuf,
+    /// Estimated trajectory; repeat to compare several (labelled by file name, or NAME=PATH).
+    #[arg(long, required = true)]
+    est: Vec<String>,
+    /// File format. With `euroc`, the ground truth is EuRoC CSV and estimates are TUM.
+    #[arg(long, value_enum, default_value = "kitti")]
+    format: FormatArg,
+    /// Alignment of each estimate onto the ground truth [default: from config, "none"].
+    #[arg(long, value_enum)]
+    align: Option<AlignArg>,
+    /// RPE step [default: from config, 1].
+    #[arg(long)]
+    delta: Option<f64>,
+    /// Unit of the RPE step [default: from config, frames].
+    #[arg(long, value_enum)]
+    delta_unit: Option<UnitArg>,
+    /// Maximum timestamp difference for association, seconds [default: from config, 0.01].
+    #[arg(long)]
+    t_max_diff: Option<f64>,
+    /// Choose RPE pairs along the ground truth instead of the estimate.
+    #[arg(long)]
+    pairs_from_reference: bool,
+    /// Write the results as JSON here.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Write PNG figures into this directory.
+    #[arg(long)]
+    plot: Option<PathBuf>,
+    /// Configuration file (TOML) providing defaults.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Print nothing but errors.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+fn parse_est(spec: &str) -> (String, PathBuf) {
+    if let Some((name, path)) = spec.split_once('=') {
+        if !name.is_empty() && !name.contains(std::path::MAIN_SEPARATOR) {
+            return (name.to_string(), PathBuf::from(path));
+        }
+    }
+    let p = PathBuf::from(spec);
+    let name = p
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| spec.to_string());
+    (name, p)
+}
+
+fn print_stats(title: &str, unit: &str, s: &Stats) {
+    println!("  {title} ({unit})");
+    for (k, v) in [
+        ("rmse", s.rmse),
+        ("mean", s.mean),
+        ("median", s.median),
+        ("std", s.std),
+        ("min", s.min),
+        ("max", s.max),
+        ("sse", s.sse),
+    ] {
+        println!("    {k:>7}  {v:.6}");
+    }
+}
+
+fn print_report(label: &str, ev: &Evaluation) {
+    let r = &ev.report;
+    println!(
+        "== {label}: {} matched poses, reference path {:.3} m",
+        r.matched_poses, r.reference_length_m
+    );
+    if r.alignment.kind != AlignmentKind::None {
+        println!(
+            "  alignment {:?}: scale {:.6}",
+            r.alignment.kind, r.alignment.scale
+        );
+    }
+    print_stats("APE translation", "m", &r.ape.trans);
+    print_stats("APE rotation angle", "deg", &r.ape.rot_deg);
+    match (&r.rpe, &r.rpe_error) {
+        (Some(rpe), _) => {
+            let unit = if rpe.delta_unit == DeltaUnit::Frames {
+                "frames"
+            } else {
+                "m"
+            };
+            print_stats(
+                &format!(
+                    "RPE translation, delta {} {unit}, {} pairs",
+                    rpe.delta, rpe.pairs
+                ),
+                "m",
+                &rpe.trans,
+            );
+            print_stats("RPE rotation angle", "deg", &rpe.rot_deg);
+        }
+        (None, Some(msg)) => println!("  RPE: not computed: {msg}"),
+        (None, None) => {}
+    }
+    match &r.kitti {
+        Some(k) => println!(
+            "  KITTI metric: t_err {:.4} %, r_err {:.4} deg/100m over {} segments",
+            k.t_err_pct, k.r_err_deg_per_100m, k.segments
+        ),
+        None => println!("  KITTI metric: not computed (ground truth shorter than 100 m)"),
+    }
+}
+
+/// Runs `supermvo eval`.
+pub fn run(args: &EvalArgs) -> Result<()> {
+    let cfg = match &args.config {
+        Some(p) => Config::load(p)?,
+        None => Config::default(),
+    };
+    let mut ec = cfg.eval.clone();
+    if let Some(a) = args.align {
+        ec.align = match a {
+            AlignArg::None => AlignmentKind::None,
+            AlignArg::Se3 => AlignmentKind::Se3,
+            AlignArg::Sim3 => AlignmentKind::Sim3,
+            AlignArg::Scale => AlignmentKind::Scale,
+        };
+    }
+    if let Some(d) = args.delta {
+        ec.delta = d;
+    }
+    if let Some(u) = args.delta_unit {
+        ec.delta_unit = match u {
+            UnitArg::Frames => DeltaUnit::Frames,
+            UnitArg::Meters => DeltaUnit::Meters,
+        };
+    }
+    if let Some(t) = args.t_max_diff {
+        ec.t_max_diff = t;
+    }
+    ec.pairs_from_reference |= args.pairs_from_reference;
+    ec.validate().context("invalid evaluation options")?;
+    let opts = ec.options();
+
+    let (gt_format, est_format) = match args.format {
+        FormatArg::Kitti => (TrajectoryFormat::Kitti, TrajectoryFormat::Kitti),
+        FormatArg::Tum => (TrajectoryFormat::Tum, TrajectoryFormat::Tum),
+        FormatArg::Euroc => (TrajectoryFormat::Euroc, TrajectoryFormat::Tum),
+    };
+    let gt = read_trajectory(&args.gt, gt_format).context("reading ground truth")?;
+    let mut results: Vec<(String, Evaluation)> = Vec::new();
+    for spec in &args.est {
+        let (label, path) = parse_est(spec);
+        let est = read_trajectory(&path, est_format).context("reading estimate")?;
+        let ev = evaluate(&gt, &est, &opts).with_context(|| {
+            format!(
+                "evaluating {} against {}",
+                path.display(),
+                args.gt.display()
+            )
+        })?;
+        if !args.quiet {
+            print_report(&label, &ev);
+        }
+        results.push((label, ev));
+    }
+    if let Some(json) = &args.json {
+        write_json(json, &results)?;
+    }
+    if let Some(dir) = &args.plot {
+        let files = supermvo_eval::plot::write_all(dir, &results)?;
+        if !args.quiet {
+            for f in files {
+                println!("wrote {}", f.display());
+            }
+        }
+    }
+    Ok(())
+}
+
+fn write_json(path: &Path, results: &[(String, Evaluation)]) -> Result<()> {
+    let value = match results {
+        [(_, ev)] => serde_json::to_value(&ev.report)?,
+        many => {
+            let mut map = serde_json::Map::new();
+            for (label, ev) in many {
+                if map.contains_key(label) {
+                    bail!("two estimates share the label '{label}'; name them with NAME=PATH");
+                }
+                map.insert(label.clone(), serde_json::to_value(&ev.report)?);
+            }
+            serde_json::Value::Object(map)
+        }
+    };
+    let text = serde_json::to_string_pretty(&value)?;
+    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+}
