@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# Installs what SuPerMVO needs on a fresh Debian/Ubuntu machine with a Rust toolchain.
+# Idempotent: does nothing when everything is already there.
+set -euo pipefail
+
+need_pkgs=()
+# plot labels are rendered with a system TrueType font
+[ -f /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf ] || [ -n "${SUPERMVO_FONT:-}" ] || need_pkgs+=(fonts-dejavu-core)
+command -v cc >/dev/null || need_pkgs+=(gcc)
+
+if [ ${#need_pkgs[@]} -gt 0 ]; then
+  echo "setup: installing Debian packages: ${need_pkgs[*]}"
+  SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO=sudo
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${need_pkgs[@]}"
+fi
+
+command -v cargo >/dev/null || { echo "setup: cargo not found; install Rust from rustup.rs first" >&2; exit 1; }
