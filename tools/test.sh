@@ -1,6 +1,10 @@
 #!/usr/bin/env bash
 # Runs every test of the workspace (release build: some tests process whole KITTI files).
+# First obtains ONNX Runtime and the learned models (cached in ~/.cache/supermvo, or
+# $SUPERMVO_CACHE; a second run downloads nothing).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash tools/setup.sh
+cargo build --release -p supermvo
+./target/release/supermvo models fetch onnxruntime xfeat
 cargo test --workspace --release "$@"

@@ -9,10 +9,12 @@
 //! gives back the same bits.
 
 mod error;
+mod image;
 mod kitti;
 mod trajectory;
 
 pub use error::DatasetError;
+pub use image::GrayImage;
 pub use kitti::{read_times, Calibration, KittiSequence};
 pub use trajectory::{
     read_trajectory, write_trajectory, PoseLines, Trajectory, TrajectoryFormat, ROTATION_TOLERANCE,

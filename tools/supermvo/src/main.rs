@@ -1,6 +1,8 @@
 //! `supermvo`: the SuPerMVO command-line tool.
 
 mod eval_cmd;
+mod features_cmd;
+mod models_cmd;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -16,6 +18,10 @@ struct Cli {
 enum Command {
     /// Evaluate estimated trajectories against ground truth (APE, RPE, KITTI metric, plots).
     Eval(eval_cmd::EvalArgs),
+    /// Obtain and list ONNX Runtime and the learned models.
+    Models(models_cmd::ModelsArgs),
+    /// Detect keypoints in an image with a learned extractor and print or save them.
+    Features(features_cmd::FeaturesArgs),
 }
 
 fn main() -> ExitCode {
@@ -29,6 +35,8 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Eval(args) => eval_cmd::run(&args),
+        Command::Models(args) => models_cmd::run(&args),
+        Command::Features(args) => features_cmd::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

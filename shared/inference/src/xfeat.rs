@@ -1,0 +1,347 @@
+//! XFeat keypoints and descriptors.
+//!
+//! The network runs in ONNX Runtime; everything around it follows the reference
+//! `XFeat.detectAndCompute`:
+//! 1. crop-free resize to multiples of 32 (bilinear, half-pixel centres);
+//! 2. heatmap = softmax over the 65 logits of each 8x8 cell, dustbin dropped, unfolded to
+//!    full resolution;
+//! 3. keypoints = 5x5 local maxima above `detection_threshold`;
+//! 4. score = heatmap (nearest) x reliability (bilinear), sampled as `grid_sample` does with
+//!    `align_corners = false` on coordinates normalised by `(W - 1, H - 1)`;
+//! 5. the `top_k` best (stable order), descriptors sampled bicubically from the
+//!    L2-normalised dense map and L2-normalised again; coordinates scaled back.
+
+use crate::runtime::open_session;
+use crate::{Extractor, Features, GrayImage, InferenceError};
+use std::path::Path;
+
+/// Settings of the XFeat extractor.
+#[derive(Debug, Clone, PartialEq)]
+pub struct XFeatConfig {
+    /// Keep at most this many keypoints.
+    pub top_k: usize,
+    /// Minimum heatmap value of a keypoint.
+    pub detection_threshold: f32,
+    /// ONNX Runtime intra-op threads.
+    pub threads: usize,
+}
+
+impl Default for XFeatConfig {
+    fn default() -> Self {
+        Self {
+            top_k: 2048,
+            detection_threshold: 0.05,
+            threads: 2,
+        }
+    }
+}
+
+/// XFeat over an ONNX Runtime session (one session, reused for every image).
+#[derive(Debug)]
+pub struct XFeat {
+    session: ort::session::Session,
+    cfg: XFeatConfig,
+}
+
+/// Raw network outputs for one image (channel-major, `h = H/8`, `w = W/8`).
+#[derive(Debug, Clone)]
+pub struct XFeatRaw {
+    /// Network input height and width (multiples of 32).
+    pub input_size: (usize, usize),
+    /// Dense descriptors `[64, h, w]`.
+    pub descriptors: Vec<f32>,
+    /// Keypoint logits `[65, h, w]`.
+    pub keypoint_logits: Vec<f32>,
+    /// Reliability `[h, w]`.
+    pub reliability: Vec<f32>,
+}
+
+const INPUTS: [&str; 1] = ["image"];
+const OUTPUTS: [&str; 3] = ["descriptors", "keypoint_logits", "reliability"];
+
+impl XFeat {
+    /// Opens `model` (an `xfeat.onnx` exported by `supermvo models fetch xfeat`).
+    pub fn new(model: &Path, cfg: XFeatConfig) -> Result<Self, InferenceError> {
+        crate::runtime::init(None)?;
+        let session = open_session(model, "xfeat", cfg.threads, &INPUTS, &OUTPUTS)?;
+        Ok(Self { session, cfg })
+    }
+
+    /// Runs the network on an image already sized to multiples of 32, values in [0, 1].
+    pub fn run_raw(
+        &mut self,
+        input: &[f32],
+        height: usize,
+        width: usize,
+    ) -> Result<XFeatRaw, InferenceError> {
+        let err = |e: ort::Error| InferenceError::Run {
+            model: "xfeat".into(),
+            message: e.to_string(),
+        };
+        let tensor = ort::value::TensorRef::from_array_view(([1usize, 1, height, width], input))
+            .map_err(err)?;
+        let outputs = self
+            .session
+            .run(ort::inputs!["image" => tensor])
+            .map_err(err)?;
+        let take = |name: &str| -> Result<Vec<f32>, InferenceError> {
+            let (_, data) = outputs[name].try_extract_tensor::<f32>().map_err(err)?;
+            Ok(data.to_vec())
+        };
+        Ok(XFeatRaw {
+            input_size: (height, width),
+            descriptors: take("descriptors")?,
+            keypoint_logits: take("keypoint_logits")?,
+            reliability: take("reliability")?,
+        })
+    }
+}
+
+/// Resizes to `(out_w, out_h)` with bilinear interpolation and half-pixel centres (as
+/// `F.interpolate(mode="bilinear", align_corners=False)`), returning values in [0, 1].
+pub fn resize_bilinear(img: &GrayImage, out_w: usize, out_h: usize) -> Vec<f32> {
+    let (w, h) = (img.width, img.height);
+    let sx = w as f32 / out_w as f32;
+    let sy = h as f32 / out_h as f32;
+    let src = |x: usize, y: usize| img.data[y * w + x] as f32 / 255.0;
+    let coord = |d: usize, s: f32, n: usize| -> (usize, usize, f32) {
+        let c = ((d as f32 + 0.5) * s - 0.5).max(0.0);
+        let i0 = (c.floor() as usize).min(n - 1);
+        let i1 = (i0 + 1).min(n - 1);
+        (i0, i1, c - i0 as f32)
+    };
+    let mut out = vec![0.0f32; out_w * out_h];
+    for oy in 0..out_h {
+        let (y0, y1, fy) = coord(oy, sy, h);
+        for ox in 0..out_w {
+            let (x0, x1, fx) = coord(ox, sx, w);
+            let top = src(x0, y0) * (1.0 - fx) + src(x1, y0) * fx;
+            let bot = src(x0, y1) * (1.0 - fx) + src(x1, y1) * fx;
+            out[oy * out_w + ox] = top * (1.0 - fy) + bot * fy;
+        }
+    }
+    out
+}
+
+/// Cubic convolution weights (A = -0.75, as PyTorch's bicubic).
+fn cubic_weights(t: f32) -> [f32; 4] {
+    const A: f32 = -0.75;
+    let w1 = |x: f32| ((A + 2.0) * x - (A + 3.0)) * x * x + 1.0;
+    let w2 = |x: f32| ((A * x - 5.0 * A) * x + 8.0 * A) * x - 4.0 * A;
+    [w2(t + 1.0), w1(t), w1(1.0 - t), w2(2.0 - t)]
+}
+
+/// Post-processing of raw outputs into at most `top_k` features (see module docs).
+pub fn postprocess(raw: &XFeatRaw, image_size: (usize, usize), cfg: &XFeatConfig) -> Features {
+    let (hh, ww) = raw.input_size;
+    let (h8, w8) = (hh / 8, ww / 8);
+    let cells = h8 * w8;
+    // 2. full-resolution heatmap
+    let mut heat = vec![0.0f32; hh * ww];
+    for cy in 0..h8 {
+        for cx in 0..w8 {
+            let idx = cy * w8 + cx;
+            let mut m = f32::NEG_INFINITY;
+            for c in 0..65 {
+                m = m.max(raw.keypoint_logits[c * cells + idx]);
+            }
+            let mut e = [0.0f32; 65];
+            let mut sum = 0.0f32;
+            for (c, ec) in e.iter_mut().enumerate() {
+                *ec = (raw.keypoint_logits[c * cells + idx] - m).exp();
+                sum += *ec;
+            }
+            for r in 0..8 {
+                for q in 0..8 {
+                    heat[(cy * 8 + r) * ww + cx * 8 + q] = e[r * 8 + q] / sum;
+                }
+            }
+        }
+    }
+    // 3. 5x5 non-maximum suppression (separable max filter), row-major order
+    let mut rowmax = vec![0.0f32; hh * ww];
+    for y in 0..hh {
+        for x in 0..ww {
+            let (a, b) = (x.saturating_sub(2), (x + 2).min(ww - 1));
+            rowmax[y * ww + x] = heat[y * ww + a..=y * ww + b]
+                .iter()
+                .copied()
+                .fold(f32::NEG_INFINITY, f32::max);
+        }
+    }
+    let mut cand: Vec<(usize, usize)> = Vec::new();
+    for y in 0..hh {
+        let (a, b) = (y.saturating_sub(2), (y + 2).min(hh - 1));
+        for x in 0..ww {
+            let v = heat[y * ww + x];
+            if v <= cfg.detection_threshold {
+                continue;
+            }
+            let local_max = (a..=b)
+                .map(|yy| rowmax[yy * ww + x])
+                .fold(f32::NEG_INFINITY, f32::max);
+            if v == local_max {
+                cand.push((x, y));
+            }
+        }
+    }
+    // 4. scores: heatmap (nearest) x reliability (bilinear), grid_sample semantics
+    let (wf, hf) = (ww as f32, hh as f32);
+    let to_grid = |p: f32, n: f32, size: f32| (p / (n - 1.0)) * size - 0.5;
+    let sample_bilinear = |map: &[f32], mw: usize, mh: usize, ix: f32, iy: f32| -> f32 {
+        let (x0, y0) = (ix.floor(), iy.floor());
+        let (fx, fy) = (ix - x0, iy - y0);
+        let mut acc = 0.0;
+        for (dy, wy) in [(0i64, 1.0 - fy), (1, fy)] {
+            for (dx, wx) in [(0i64, 1.0 - fx), (1, fx)] {
+                let (xx, yy) = (x0 as i64 + dx, y0 as i64 + dy);
+                if xx >= 0 && yy >= 0 && (xx as usize) < mw && (yy as usize) < mh {
+                    acc += wx * wy * map[yy as usize * mw + xx as usize];
+                }
+            }
+        }
+        acc
+    };
+    let mut scored: Vec<(f32, usize, usize)> = cand
+        .iter()
+        .map(|&(x, y)| {
+            if x == 0 && y == 0 {
+                return (-1.0, x, y); // the reference marks (0, 0) as padding
+            }
+            let nx = to_grid(x as f32, wf, wf).round_ties_even();
+            let ny = to_grid(y as f32, hf, hf).round_ties_even();
+            let hv = if nx >= 0.0 && ny >= 0.0 && (nx as usize) < ww && (ny as usize) < hh {
+                heat[ny as usize * ww + nx as usize]
+            } else {
+                0.0
+            };
+            let rv = sample_bilinear(
+                &raw.reliability,
+                w8,
+                h8,
+                to_grid(x as f32, wf, w8 as f32),
+                to_grid(y as f32, hf, h8 as f32),
+            );
+            (hv * rv, x, y)
+        })
+        .collect();
+    // 5. top-k by score (stable: ties keep row-major order), positive scores only
+    scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+    scored.truncate(cfg.top_k);
+    scored.retain(|s| s.0 > 0.0);
+    // dense descriptors, L2-normalised per cell
+    let mut dense = raw.descriptors.clone();
+    for i in 0..cells {
+        let n: f32 = (0..64)
+            .map(|c| dense[c * cells + i].powi(2))
+            .sum::<f32>()
+            .sqrt()
+            .max(1e-12);
+        for c in 0..64 {
+            dense[c * cells + i] /= n;
+        }
+    }
+    let (rw, rh) = (image_size.0 as f32 / wf, image_size.1 as f32 / hf);
+    let mut out = Features {
+        dim: 64,
+        image_size,
+        ..Default::default()
+    };
+    out.descriptors.reserve(scored.len() * 64);
+    for &(s, x, y) in &scored {
+        let ix = to_grid(x as f32, wf, w8 as f32);
+        let iy = to_grid(y as f32, hf, h8 as f32);
+        let (x0, y0) = (ix.floor() as i64, iy.floor() as i64);
+        let wx = cubic_weights(ix - x0 as f32);
+        let wy = cubic_weights(iy - y0 as f32);
+        let mut d = [0.0f32; 64];
+        for (j, wyj) in wy.iter().enumerate() {
+            let yy = y0 - 1 + j as i64;
+            if yy < 0 || yy as usize >= h8 {
+                continue;
+            }
+            for (i, wxi) in wx.iter().enumerate() {
+                let xx = x0 - 1 + i as i64;
+                if xx < 0 || xx as usize >= w8 {
+                    continue;
+                }
+                let wgt = wyj * wxi;
+                let base = yy as usize * w8 + xx as usize;
+                for (c, dc) in d.iter_mut().enumerate() {
+                    *dc += wgt * dense[c * cells + base];
+                }
+            }
+        }
+        let n = d.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-12);
+        out.descriptors.extend(d.iter().map(|v| v / n));
+        out.keypoints.push([x as f32 * rw, y as f32 * rh]);
+        out.scores.push(s);
+    }
+    out
+}
+
+impl Extractor for XFeat {
+    fn extract(&mut self, image: &GrayImage) -> Result<Features, InferenceError> {
+        if image.width < 32 || image.height < 32 {
+            return Err(InferenceError::BadImage(format!(
+                "image is {}x{}; XFeat needs at least 32x32 pixels",
+                image.width, image.height
+            )));
+        }
+        let (w32, h32) = ((image.width / 32) * 32, (image.height / 32) * 32);
+        let input = resize_bilinear(image, w32, h32);
+        let raw = self.run_raw(&input, h32, w32)?;
+        Ok(postprocess(&raw, (image.width, image.height), &self.cfg))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cubic_weights_sum_to_one_and_interpolate() {
+        for t in [0.0f32, 0.25, 0.5, 0.9] {
+            let w = cubic_weights(t);
+            assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-6);
+        }
+        assert_eq!(cubic_weights(0.0), [0.0, 1.0, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn resize_identity_keeps_pixels() {
+        let img = GrayImage::new(4, 2, vec![0, 51, 102, 153, 204, 255, 0, 51]).unwrap();
+        let out = resize_bilinear(&img, 4, 2);
+        for (a, b) in out.iter().zip(&img.data) {
+            assert!((a - *b as f32 / 255.0).abs() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn single_peak_gives_one_keypoint() {
+        // 64x64 input: an 8x8 grid of cells; make cell (2, 3) put all mass on sub-pixel (5, 6)
+        let (hh, ww) = (64usize, 64usize);
+        let cells = 64;
+        let mut logits = vec![0.0f32; 65 * cells];
+        for i in 0..cells {
+            logits[64 * cells + i] = 10.0; // dustbin everywhere
+        }
+        let cell = 3 * 8 + 2;
+        logits[(6 * 8 + 5) * cells + cell] = 30.0;
+        let raw = XFeatRaw {
+            input_size: (hh, ww),
+            descriptors: (0..64 * cells).map(|i| (i % 7) as f32 + 1.0).collect(),
+            keypoint_logits: logits,
+            reliability: vec![0.5; cells],
+        };
+        let f = postprocess(&raw, (128, 64), &XFeatConfig::default());
+        assert_eq!(f.len(), 1);
+        assert_eq!(
+            f.keypoints[0],
+            [(2 * 8 + 5) as f32 * 2.0, (3 * 8 + 6) as f32]
+        );
+        assert!((f.scores[0] - 0.5).abs() < 1e-3);
+        let n: f32 = f.descriptor(0).iter().map(|v| v * v).sum();
+        assert!((n - 1.0).abs() < 1e-5);
+    }
+}

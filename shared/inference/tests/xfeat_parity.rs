@@ -1,0 +1,174 @@
+//! XFeat fidelity against the independent exports in ../shared/models/reference.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
+
+use std::path::{Path, PathBuf};
+use supermvo_inference::runtime::{init, open_session};
+use supermvo_inference::xfeat::{resize_bilinear, XFeat, XFeatConfig};
+use supermvo_inference::{models, Extractor, GrayImage};
+
+fn required() -> bool {
+    std::env::var("SUPERMVO_REQUIRE_SHARED").as_deref() == Ok("1")
+}
+
+fn shared() -> Option<PathBuf> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared");
+    if p.join("models/reference").is_dir() {
+        return Some(p);
+    }
+    assert!(
+        !required(),
+        "{} missing and SUPERMVO_REQUIRE_SHARED=1",
+        p.display()
+    );
+    eprintln!("SKIP: {} not found", p.display());
+    None
+}
+
+/// Our exported model and the runtime, or a skip (a failure in CI).
+fn our_model() -> Option<PathBuf> {
+    let m = models::model_path("xfeat");
+    if m.is_file() && init(None).is_ok() {
+        return Some(m);
+    }
+    assert!(
+        !required(),
+        "xfeat model or ONNX Runtime missing: run 'supermvo models fetch onnxruntime xfeat'"
+    );
+    eprintln!(
+        "SKIP: xfeat model or ONNX Runtime missing (run 'supermvo models fetch onnxruntime xfeat')"
+    );
+    None
+}
+
+fn run(
+    session: &mut ort::session::Session,
+    name: &str,
+    shape: [usize; 4],
+    data: &[f32],
+) -> Vec<Vec<f32>> {
+    let t = ort::value::TensorRef::from_array_view((shape, data)).unwrap();
+    let out = session.run(ort::inputs![name => t]).unwrap();
+    (0..out.len())
+        .map(|i| out[i].try_extract_tensor::<f32>().unwrap().1.to_vec())
+        .collect()
+}
+
+#[test]
+fn raw_outputs_match_independent_export() {
+    let (Some(shared), Some(ours)) = (shared(), our_model()) else {
+        return;
+    };
+    let mut a = open_session(
+        &ours,
+        "xfeat",
+        2,
+        &["image"],
+        &["descriptors", "keypoint_logits", "reliability"],
+    )
+    .unwrap();
+    let mut b = open_session(
+        &shared.join("models/reference/n4m_xfeat.onnx"),
+        "n4m_xfeat",
+        2,
+        &["input"],
+        &[],
+    )
+    .unwrap();
+    let mut worst = 0.0f32;
+    // first and a middle frame of every clip: three image sizes
+    for (seq, frame) in [
+        ("00", 0),
+        ("00", 100),
+        ("01", 30),
+        ("03", 150),
+        ("06", 0),
+        ("07", 80),
+    ] {
+        let img = GrayImage::load(
+            &shared.join(format!("data/kitti/sequences/{seq}/image_0/{frame:06}.png")),
+        )
+        .unwrap();
+        let (w, h) = ((img.width / 32) * 32, (img.height / 32) * 32);
+        let x = resize_bilinear(&img, w, h);
+        let x3: Vec<f32> = x.iter().chain(&x).chain(&x).copied().collect();
+        let oa = run(&mut a, "image", [1, 1, h, w], &x);
+        let ob = run(&mut b, "input", [1, 3, h, w], &x3);
+        for (ta, tb) in oa.iter().zip(&ob) {
+            assert_eq!(ta.len(), tb.len());
+            let d = ta
+                .iter()
+                .zip(tb)
+                .map(|(p, q)| (p - q).abs())
+                .fold(0.0f32, f32::max);
+            worst = worst.max(d);
+            assert!(d <= 1e-4, "seq {seq} frame {frame}: max abs diff {d}");
+        }
+    }
+    eprintln!("largest raw-output difference vs n4m_xfeat.onnx: {worst:e}");
+}
+
+#[test]
+fn keypoints_match_independent_end_to_end_export() {
+    // xfeat_1024_640x360.onnx includes detection, top-1024 selection and descriptor
+    // sampling in the graph; our Rust post-processing must pick the same keypoints.
+    let (Some(shared), Some(ours)) = (shared(), our_model()) else {
+        return;
+    };
+    let full = GrayImage::load(&shared.join("data/kitti/sequences/00/image_0/000010.png")).unwrap();
+    // a 360x640 portrait image: 360-pixel-wide crop, stretched vertically
+    let (w, h) = (360usize, 640usize);
+    let mut data = vec![0u8; w * h];
+    for y in 0..h {
+        let sy = (y * full.height) / h;
+        for x in 0..w {
+            data[y * w + x] = full.get(400 + x, sy);
+        }
+    }
+    let img = GrayImage::new(w, h, data).unwrap();
+    let mut xfeat = XFeat::new(
+        &ours,
+        XFeatConfig {
+            top_k: 1024,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let f = xfeat.extract(&img).unwrap();
+    let mut reference = open_session(
+        &shared.join("models/reference/xfeat_1024_640x360.onnx"),
+        "ref",
+        2,
+        &["images"],
+        &[],
+    )
+    .unwrap();
+    let x: Vec<f32> = img.data.iter().map(|&v| v as f32).collect();
+    let x3: Vec<f32> = x.iter().chain(&x).chain(&x).copied().collect();
+    let out = run(&mut reference, "images", [1, 3, h, w], &x3);
+    let (kp, desc, scores) = (&out[0], &out[1], &out[2]);
+    assert_eq!(kp.len() / 2, f.len());
+    // Compare as sets: scores that tie to float precision may come out in either order.
+    let mut same = 0;
+    for i in 0..f.len() {
+        let (rx, ry) = (kp[2 * i], kp[2 * i + 1]);
+        let Some(j) = (0..f.len()).find(|&j| {
+            (rx - f.keypoints[j][0]).abs() < 1e-3 && (ry - f.keypoints[j][1]).abs() < 1e-3
+        }) else {
+            continue;
+        };
+        same += 1;
+        assert!(
+            (scores[i] - f.scores[j]).abs() < 1e-3,
+            "score of ({rx}, {ry}): {} vs {}",
+            scores[i],
+            f.scores[j]
+        );
+        let cos: f32 = (0..64).map(|c| desc[64 * i + c] * f.descriptor(j)[c]).sum();
+        assert!(cos > 0.9999, "descriptor of ({rx}, {ry}): cosine {cos}");
+    }
+    assert!(
+        same as f32 >= 0.99 * f.len() as f32,
+        "only {same} of {} keypoints found in both",
+        f.len()
+    );
+}

