@@ -6,5 +6,5 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash tools/setup.sh
 cargo build --release -p supermvo
-./target/release/supermvo models fetch onnxruntime xfeat
+./target/release/supermvo models fetch onnxruntime xfeat lighterglue lighterglue-l3
 cargo test --workspace --release "$@"

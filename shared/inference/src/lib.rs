@@ -10,6 +10,7 @@
 //!   top-k, bicubic descriptor sampling) written in Rust.
 
 mod error;
+pub mod lighterglue;
 pub mod models;
 pub mod runtime;
 pub mod xfeat;

