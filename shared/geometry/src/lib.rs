@@ -3,13 +3,14 @@
 //! Conventions: a pose named `T_a_b` maps points expressed in frame `b` into frame `a`
 //! (`p_in_a = T_a_b * p_in_b`). Trajectories store `T_world_cam` per frame.
 
+pub mod essential;
 mod pose;
 mod rotation;
 mod sim3;
 mod umeyama;
 
 pub use pose::Pose;
-pub use rotation::{euler_rpy, rotation_angle, so3_exp, so3_log, OrthonormalityError};
+pub use rotation::{euler_rpy, rotation_angle, skew, so3_exp, so3_log, OrthonormalityError};
 pub use sim3::Sim3;
 pub use umeyama::{umeyama, AlignmentKind, UmeyamaError};
 

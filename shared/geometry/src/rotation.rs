@@ -94,6 +94,11 @@ pub fn so3_exp(w: &Vec3) -> Mat3 {
     Rotation3::new(*w).into_inner()
 }
 
+/// Skew-symmetric matrix `[v]x` with `[v]x w = v x w`.
+pub fn skew(v: &Vec3) -> Mat3 {
+    Mat3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
 /// Roll, pitch, yaw in radians of a rotation, static x-y-z convention
 /// (`R = Rz(yaw) * Ry(pitch) * Rx(roll)`), as evo plots them.
 pub fn euler_rpy(q: &UnitQuaternion<f64>) -> (f64, f64, f64) {

@@ -17,6 +17,24 @@ pub struct BenchArgs {
 
 #[derive(Debug, Subcommand)]
 enum BenchCommand {
+    /// Matches and 5-point RANSAC inliers on every consecutive pair of KITTI sequences.
+    Matching {
+        /// Sequence directories (`.../sequences/NN`).
+        #[arg(required = true)]
+        sequences: Vec<PathBuf>,
+        /// Keypoints per frame.
+        #[arg(long, default_value_t = 2048)]
+        top_k: usize,
+        /// RANSAC threshold, pixels.
+        #[arg(long, default_value_t = 1.0)]
+        threshold_px: f64,
+        /// RANSAC confidence.
+        #[arg(long, default_value_t = 0.999)]
+        confidence: f64,
+        /// Write per-pair rows (seq, frame, matches, inliers) as CSV here.
+        #[arg(long)]
+        csv: Option<PathBuf>,
+    },
     /// XFeat extraction and LighterGlue matching on two consecutive frames.
     Frontend {
         /// First image; the second is the next frame (or the same image again).
@@ -48,12 +66,29 @@ fn median_ms(mut f: impl FnMut() -> Result<()>, runs: usize) -> Result<f64> {
 
 /// Runs `supermvo bench`; prints one JSON object of medians in milliseconds.
 pub fn run(args: &BenchArgs) -> Result<()> {
-    let BenchCommand::Frontend {
-        image_a,
-        image_b,
-        runs,
-        threads,
-    } = &args.command;
+    let (image_a, image_b, runs, threads) = match &args.command {
+        BenchCommand::Frontend {
+            image_a,
+            image_b,
+            runs,
+            threads,
+        } => (image_a, image_b, runs, threads),
+        BenchCommand::Matching {
+            sequences,
+            top_k,
+            threshold_px,
+            confidence,
+            csv,
+        } => {
+            return matching(
+                sequences,
+                *top_k,
+                *threshold_px,
+                *confidence,
+                csv.as_deref(),
+            );
+        }
+    };
     if *runs == 0 {
         bail!("--runs must be at least 1");
     }
@@ -108,5 +143,109 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     result.insert("input_size".into(), serde_json::json!([w, h]));
     result.insert("threads".into(), (*threads).into());
     println!("{}", serde_json::Value::Object(result));
+    Ok(())
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    if v.is_empty() {
+        f64::NAN
+    } else {
+        v[v.len() / 2]
+    }
+}
+
+/// XFeat + LighterGlue on consecutive frames, then 5-point RANSAC: a Markdown table row
+/// per sequence (median and mean of matches, inliers, inlier ratio).
+fn matching(
+    sequences: &[PathBuf],
+    top_k: usize,
+    threshold_px: f64,
+    confidence: f64,
+    csv: Option<&std::path::Path>,
+) -> Result<()> {
+    use supermvo_dataset::KittiSequence;
+    use supermvo_geometry::essential::{find_essential, RansacConfig};
+    use supermvo_geometry::Vec3;
+    let mut xfeat = XFeat::new(
+        &models::model_path("xfeat"),
+        XFeatConfig {
+            top_k,
+            ..Default::default()
+        },
+    )?;
+    let mut lg = LightGlue::new(
+        &models::model_path("lighterglue"),
+        "lighterglue",
+        LightGlueConfig::default(),
+    )?;
+    let ransac = RansacConfig {
+        threshold_px,
+        confidence,
+        ..Default::default()
+    };
+    let mut rows = String::from("seq,frame,matches,inliers\n");
+    println!("| seq | pairs | matches (median / mean) | inliers (median / mean) | inlier ratio (median / mean) |");
+    println!("|---|---|---|---|---|");
+    for dir in sequences {
+        let seq = KittiSequence::open(dir)?;
+        let k = seq.calib;
+        let norm = |p: &[f32; 2]| {
+            Vec3::new(
+                (p[0] as f64 - k.cx) / k.fx,
+                (p[1] as f64 - k.cy) / k.fy,
+                1.0,
+            )
+        };
+        let (mut ms, mut is, mut rs) = (Vec::new(), Vec::new(), Vec::new());
+        let mut prev = xfeat.extract(&GrayImage::load(&seq.images[0])?)?;
+        for (i, path) in seq.images.iter().enumerate().skip(1) {
+            let cur = xfeat.extract(&GrayImage::load(path)?)?;
+            let m = lg.match_features(&prev, &cur)?;
+            let x1: Vec<Vec3> = m
+                .pairs
+                .iter()
+                .map(|&(a, _)| norm(&prev.keypoints[a]))
+                .collect();
+            let x2: Vec<Vec3> = m
+                .pairs
+                .iter()
+                .map(|&(_, b)| norm(&cur.keypoints[b]))
+                .collect();
+            let inl = find_essential(&x1, &x2, 0.5 * (k.fx + k.fy), &ransac)
+                .map_or(0, |e| e.inlier_count());
+            rows.push_str(&format!(
+                "{},{},{},{}\n",
+                seq.name(),
+                i - 1,
+                m.pairs.len(),
+                inl
+            ));
+            ms.push(m.pairs.len() as f64);
+            is.push(inl as f64);
+            rs.push(if m.pairs.is_empty() {
+                0.0
+            } else {
+                inl as f64 / m.pairs.len() as f64
+            });
+            prev = cur;
+        }
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+        let (mm, im, rm) = (mean(&ms), mean(&is), mean(&rs));
+        println!(
+            "| {} | {} | {:.0} / {:.0} | {:.0} / {:.0} | {:.3} / {:.3} |",
+            seq.name(),
+            ms.len(),
+            median(&mut ms),
+            mm,
+            median(&mut is),
+            im,
+            median(&mut rs),
+            rm
+        );
+    }
+    if let Some(p) = csv {
+        std::fs::write(p, rows)?;
+    }
     Ok(())
 }

@@ -1,0 +1,700 @@
+//! Relative pose from point correspondences: the 5-point essential-matrix solver
+//! (Stewénius, Engels and Nistér, 2006: Gröbner basis via an action matrix) inside RANSAC,
+//! and the decomposition of `E` into `(R, t)` with the cheirality check.
+//!
+//! Conventions: `x1`, `x2` are normalised image coordinates (`K^-1 [u v 1]^T`) of the same
+//! point in camera 1 and camera 2, and `x2^T E x1 = 0` with `E = [t]x R`, where
+//! `(R, t) = T_cam2_cam1` maps points from camera 1 into camera 2.
+
+use crate::{Mat3, Vec3};
+use nalgebra::{DMatrix, SMatrix, Vector3};
+use std::sync::OnceLock;
+
+/// Monomials of degree <= 3 in (x, y, z), ordered as the elimination needs:
+/// the ten cubics first, then the basis `x^2 xy xz y^2 yz z^2 x y z 1`.
+const MONOMIALS: [(u8, u8, u8); 20] = [
+    (3, 0, 0),
+    (2, 1, 0),
+    (2, 0, 1),
+    (1, 2, 0),
+    (1, 1, 1),
+    (1, 0, 2),
+    (0, 3, 0),
+    (0, 2, 1),
+    (0, 1, 2),
+    (0, 0, 3),
+    (2, 0, 0),
+    (1, 1, 0),
+    (1, 0, 1),
+    (0, 2, 0),
+    (0, 1, 1),
+    (0, 0, 2),
+    (1, 0, 0),
+    (0, 1, 0),
+    (0, 0, 1),
+    (0, 0, 0),
+];
+
+/// `PRODUCT[i][j]`: index of monomial i * monomial j, or 255 past degree 3.
+fn product_table() -> &'static [[u8; 20]; 20] {
+    static T: OnceLock<[[u8; 20]; 20]> = OnceLock::new();
+    T.get_or_init(|| {
+        let mut t = [[255u8; 20]; 20];
+        for (i, a) in MONOMIALS.iter().enumerate() {
+            for (j, b) in MONOMIALS.iter().enumerate() {
+                let m = (a.0 + b.0, a.1 + b.1, a.2 + b.2);
+                if let Some(k) = MONOMIALS.iter().position(|&q| q == m) {
+                    t[i][j] = k as u8;
+                }
+            }
+        }
+        t
+    })
+}
+
+/// A polynomial of degree <= 3 in (x, y, z).
+#[derive(Clone, Copy)]
+struct Poly([f64; 20]);
+
+impl Poly {
+    fn zero() -> Self {
+        Poly([0.0; 20])
+    }
+    fn linear(x: f64, y: f64, z: f64, w: f64) -> Self {
+        let mut p = Self::zero();
+        p.0[16] = x;
+        p.0[17] = y;
+        p.0[18] = z;
+        p.0[19] = w;
+        p
+    }
+    #[allow(clippy::needless_range_loop)] // index notation mirrors the algebra
+    fn mul(&self, o: &Poly) -> Poly {
+        let t = product_table();
+        let mut r = Self::zero();
+        for i in 0..20 {
+            if self.0[i] == 0.0 {
+                continue;
+            }
+            for j in 0..20 {
+                if o.0[j] != 0.0 && t[i][j] != 255 {
+                    r.0[t[i][j] as usize] += self.0[i] * o.0[j];
+                }
+            }
+        }
+        r
+    }
+    fn add(&self, o: &Poly) -> Poly {
+        let mut r = *self;
+        for i in 0..20 {
+            r.0[i] += o.0[i];
+        }
+        r
+    }
+    fn scale(&self, s: f64) -> Poly {
+        let mut r = *self;
+        r.0.iter_mut().for_each(|v| *v *= s);
+        r
+    }
+}
+
+/// All essential matrices (up to 10) consistent with five correspondences.
+#[allow(clippy::needless_range_loop)] // index notation mirrors the matrix algebra
+pub fn five_point(x1: &[Vec3; 5], x2: &[Vec3; 5]) -> Vec<Mat3> {
+    // null space of the 5x9 epipolar constraint matrix (padded to 9x9)
+    let mut q = SMatrix::<f64, 9, 9>::zeros();
+    for i in 0..5 {
+        let (a, b) = (x1[i] / x1[i].z, x2[i] / x2[i].z);
+        for r in 0..3 {
+            for c in 0..3 {
+                q[(i, 3 * r + c)] = b[r] * a[c];
+            }
+        }
+    }
+    let svd = q.svd(false, true);
+    let Some(vt) = svd.v_t else { return Vec::new() };
+    // singular values are sorted descending: the last four rows span the null space
+    let mut order: Vec<usize> = (0..9).collect();
+    order.sort_by(|&i, &j| svd.singular_values[j].total_cmp(&svd.singular_values[i]));
+    let basis: Vec<[f64; 9]> = order[5..]
+        .iter()
+        .map(|&r| std::array::from_fn(|k| vt[(r, k)]))
+        .collect();
+    // E(x, y, z) = x X + y Y + z Z + W
+    let e: [[Poly; 3]; 3] = std::array::from_fn(|r| {
+        std::array::from_fn(|c| {
+            let k = 3 * r + c;
+            Poly::linear(basis[0][k], basis[1][k], basis[2][k], basis[3][k])
+        })
+    });
+    let mut eqs: Vec<Poly> = Vec::with_capacity(10);
+    // det(E) = 0
+    let det = e[0][0]
+        .mul(
+            &e[1][1]
+                .mul(&e[2][2])
+                .add(&e[1][2].mul(&e[2][1]).scale(-1.0)),
+        )
+        .add(
+            &e[0][1].mul(
+                &e[1][2]
+                    .mul(&e[2][0])
+                    .add(&e[1][0].mul(&e[2][2]).scale(-1.0)),
+            ),
+        )
+        .add(
+            &e[0][2].mul(
+                &e[1][0]
+                    .mul(&e[2][1])
+                    .add(&e[1][1].mul(&e[2][0]).scale(-1.0)),
+            ),
+        );
+    eqs.push(det);
+    // 2 E E^T E - tr(E E^T) E = 0
+    let mut eet = [[Poly::zero(); 3]; 3];
+    for r in 0..3 {
+        for c in 0..3 {
+            for k in 0..3 {
+                eet[r][c] = eet[r][c].add(&e[r][k].mul(&e[c][k]));
+            }
+        }
+    }
+    let trace = eet[0][0].add(&eet[1][1]).add(&eet[2][2]);
+    for r in 0..3 {
+        for c in 0..3 {
+            let mut acc = Poly::zero();
+            for k in 0..3 {
+                acc = acc.add(&eet[r][k].mul(&e[k][c]));
+            }
+            eqs.push(acc.scale(2.0).add(&trace.mul(&e[r][c]).scale(-1.0)));
+        }
+    }
+    // Gauss-Jordan on the 10x20 coefficient matrix, partial pivoting
+    let mut m = DMatrix::<f64>::from_fn(10, 20, |r, c| eqs[r].0[c]);
+    for col in 0..10 {
+        let (piv, best) = (col..10)
+            .map(|r| (r, m[(r, col)].abs()))
+            .fold((col, -1.0), |a, b| if b.1 > a.1 { b } else { a });
+        if best < 1e-12 {
+            return Vec::new();
+        }
+        m.swap_rows(col, piv);
+        let p = m[(col, col)];
+        for c in 0..20 {
+            m[(col, c)] /= p;
+        }
+        for r in 0..10 {
+            if r != col {
+                let f = m[(r, col)];
+                if f != 0.0 {
+                    for c in 0..20 {
+                        m[(r, c)] -= f * m[(col, c)];
+                    }
+                }
+            }
+        }
+    }
+    // action matrix of multiplication by x on the basis b = [x^2 xy xz y^2 yz z^2 x y z 1]
+    let mut a = SMatrix::<f64, 10, 10>::zeros();
+    for i in 0..6 {
+        for j in 0..10 {
+            a[(i, j)] = -m[(i, 10 + j)];
+        }
+    }
+    a[(6, 0)] = 1.0; // x * x = x^2
+    a[(7, 1)] = 1.0; // x * y = xy
+    a[(8, 2)] = 1.0; // x * z = xz
+    a[(9, 6)] = 1.0; // x * 1 = x
+    let mut out = Vec::new();
+    for ev in a.complex_eigenvalues().iter() {
+        if ev.im.abs() > 1e-8 * (1.0 + ev.re.abs()) {
+            continue;
+        }
+        let lambda = ev.re;
+        let shifted = a - SMatrix::<f64, 10, 10>::identity() * lambda;
+        let s = shifted.svd(false, true);
+        let Some(vt) = s.v_t else { continue };
+        let (k, _) = s
+            .singular_values
+            .iter()
+            .enumerate()
+            .fold(
+                (0, f64::INFINITY),
+                |b, (i, &v)| if v < b.1 { (i, v) } else { b },
+            );
+        let v = vt.row(k);
+        if v[9].abs() < 1e-12 {
+            continue;
+        }
+        let (x, y, z) = (lambda, v[7] / v[9], v[8] / v[9]);
+        let mut em = Mat3::zeros();
+        for r in 0..3 {
+            for c in 0..3 {
+                let kk = 3 * r + c;
+                em[(r, c)] = x * basis[0][kk] + y * basis[1][kk] + z * basis[2][kk] + basis[3][kk];
+            }
+        }
+        let n = em.norm();
+        if n > 0.0 && n.is_finite() {
+            out.push(em / n);
+        }
+    }
+    out
+}
+
+/// Squared Sampson distance of a correspondence to the epipolar geometry of `e`.
+pub fn sampson_sq(e: &Mat3, x1: &Vec3, x2: &Vec3) -> f64 {
+    let (a, b) = (x1 / x1.z, x2 / x2.z);
+    let ex1 = e * a;
+    let etx2 = e.transpose() * b;
+    let num = b.dot(&ex1);
+    let den = ex1.x * ex1.x + ex1.y * ex1.y + etx2.x * etx2.x + etx2.y * etx2.y;
+    if den <= 0.0 {
+        f64::INFINITY
+    } else {
+        num * num / den
+    }
+}
+
+/// Settings of the essential-matrix RANSAC.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RansacConfig {
+    /// Inlier threshold in pixels (converted with the focal length).
+    pub threshold_px: f64,
+    /// Desired probability of drawing at least one all-inlier sample.
+    pub confidence: f64,
+    /// Upper bound on iterations.
+    pub max_iterations: usize,
+    /// Lower bound on iterations. The adaptive stopping rule assumes every all-inlier
+    /// sample gives a good model; with pixel noise and forward motion the Sampson cost has
+    /// several basins, so a floor on the sample count makes the good one likely.
+    pub min_iterations: usize,
+    /// Seed of the sampler (runs are deterministic for a seed).
+    pub seed: u64,
+}
+
+impl Default for RansacConfig {
+    fn default() -> Self {
+        Self {
+            threshold_px: 1.0,
+            confidence: 0.999,
+            max_iterations: 1000,
+            min_iterations: 200,
+            seed: 0x5eed,
+        }
+    }
+}
+
+/// Result of [`find_essential`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct EssentialEstimate {
+    /// Essential matrix (unit Frobenius norm).
+    pub e: Mat3,
+    /// Inlier flag per correspondence.
+    pub inliers: Vec<bool>,
+    /// Iterations run.
+    pub iterations: usize,
+}
+
+impl EssentialEstimate {
+    /// Number of inliers.
+    pub fn inlier_count(&self) -> usize {
+        self.inliers.iter().filter(|&&b| b).count()
+    }
+}
+
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> u64 {
+        // xorshift64*
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
+    }
+    fn below(&mut self, n: usize) -> usize {
+        (self.next() % n as u64) as usize
+    }
+}
+
+/// Essential matrix by 5-point RANSAC. `x1`, `x2`: normalised coordinates; `focal`: focal
+/// length in pixels (for the pixel threshold). `None` with fewer than 5 correspondences or
+/// when no sample gives a solution.
+pub fn find_essential(
+    x1: &[Vec3],
+    x2: &[Vec3],
+    focal: f64,
+    cfg: &RansacConfig,
+) -> Option<EssentialEstimate> {
+    let n = x1.len().min(x2.len());
+    if n < 5 || focal <= 0.0 {
+        return None;
+    }
+    let thr_sq = (cfg.threshold_px / focal).powi(2);
+    let mut rng = Rng(cfg.seed.max(1));
+    // (model, inliers, MSAC score = sum of min(d^2, thr^2)); lower score wins
+    let mut best: Option<(Mat3, usize, f64)> = None;
+    let mut needed = cfg.max_iterations;
+    let mut it = 0;
+    while it < needed.max(cfg.min_iterations).min(cfg.max_iterations) {
+        it += 1;
+        let mut idx = [0usize; 5];
+        let mut k = 0;
+        while k < 5 {
+            let c = rng.below(n);
+            if !idx[..k].contains(&c) {
+                idx[k] = c;
+                k += 1;
+            }
+        }
+        let s1: [Vec3; 5] = std::array::from_fn(|i| x1[idx[i]]);
+        let s2: [Vec3; 5] = std::array::from_fn(|i| x2[idx[i]]);
+        for e in five_point(&s1, &s2) {
+            let score = msac_score(&e, x1, x2, thr_sq);
+            if best.as_ref().is_none_or(|b| score < b.2) {
+                // a new best model: polish it before it sets the stopping criterion
+                let (e, count, score) = local_optimisation(e, score, x1, x2, thr_sq);
+                best = Some((e, count, score));
+                let w = count as f64 / n as f64;
+                let denom = (1.0 - w.powi(5)).max(1e-12).ln();
+                needed = if denom >= 0.0 {
+                    0
+                } else {
+                    ((1.0 - cfg.confidence).ln() / denom).ceil() as usize
+                };
+            }
+        }
+    }
+    let (e, _, _) = best?;
+    let inliers = (0..n)
+        .map(|i| sampson_sq(&e, &x1[i], &x2[i]) < thr_sq)
+        .collect();
+    Some(EssentialEstimate {
+        e,
+        inliers,
+        iterations: it,
+    })
+}
+
+/// Iterated local optimisation (LO-RANSAC, Chum et al. 2003): refine by minimising the
+/// Sampson error over the points within a widened threshold (4x, then 2x, then 1x), so a
+/// model from a noisy minimal sample can move out of the basin its own inlier set defines.
+/// The result replaces the model only if its MSAC score is no worse.
+fn local_optimisation(
+    e: Mat3,
+    score: f64,
+    x1: &[Vec3],
+    x2: &[Vec3],
+    thr_sq: f64,
+) -> (Mat3, usize, f64) {
+    let n = x1.len().min(x2.len());
+    let mut cur = e;
+    for scale in [16.0, 4.0, 1.0, 1.0] {
+        let inl: Vec<usize> = (0..n)
+            .filter(|&i| sampson_sq(&cur, &x1[i], &x2[i]) < thr_sq * scale)
+            .collect();
+        let a: Vec<Vec3> = inl.iter().map(|&i| x1[i]).collect();
+        let b: Vec<Vec3> = inl.iter().map(|&i| x2[i]).collect();
+        cur = refine_essential(&cur, &a, &b, 15);
+    }
+    let s2 = msac_score(&cur, x1, x2, thr_sq);
+    let (e, score) = if s2 <= score { (cur, s2) } else { (e, score) };
+    let count = (0..n)
+        .filter(|&i| sampson_sq(&e, &x1[i], &x2[i]) < thr_sq)
+        .count();
+    (e, count, score)
+}
+
+/// MSAC score: inliers cost their squared Sampson distance, outliers the squared threshold.
+fn msac_score(e: &Mat3, x1: &[Vec3], x2: &[Vec3], thr_sq: f64) -> f64 {
+    x1.iter()
+        .zip(x2)
+        .map(|(a, b)| sampson_sq(e, a, b).min(thr_sq))
+        .sum()
+}
+
+/// Signed Sampson residual (normalised units).
+fn sampson_residual(e: &Mat3, x1: &Vec3, x2: &Vec3) -> f64 {
+    let (a, b) = (x1 / x1.z, x2 / x2.z);
+    let ex1 = e * a;
+    let etx2 = e.transpose() * b;
+    let den = (ex1.x * ex1.x + ex1.y * ex1.y + etx2.x * etx2.x + etx2.y * etx2.y).sqrt();
+    if den > 0.0 {
+        b.dot(&ex1) / den
+    } else {
+        0.0
+    }
+}
+
+/// Levenberg-Marquardt on `E = [t]x R` (rotation by a right perturbation, `t` on the unit
+/// sphere): minimises the sum of squared Sampson residuals of the given correspondences.
+pub fn refine_essential(e: &Mat3, x1: &[Vec3], x2: &[Vec3], iterations: usize) -> Mat3 {
+    let n = x1.len().min(x2.len());
+    let svd = e.svd(true, true);
+    let (Some(mut u), Some(mut vt)) = (svd.u, svd.v_t) else {
+        return *e;
+    };
+    if n < 6 {
+        return *e;
+    }
+    if u.determinant() < 0.0 {
+        u = -u;
+    }
+    if vt.determinant() < 0.0 {
+        vt = -vt;
+    }
+    let w = Mat3::new(0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0);
+    let mut r = u * w * vt;
+    let mut t: Vec3 = u.column(2).into_owned();
+    let build = |r: &Mat3, t: &Vec3| crate::rotation::skew(t) * r;
+    let cost = |em: &Mat3| {
+        (0..n)
+            .map(|i| sampson_residual(em, &x1[i], &x2[i]).powi(2))
+            .sum::<f64>()
+    };
+    let apply = |r: &Mat3, t: &Vec3, d: &SMatrix<f64, 5, 1>| -> (Mat3, Vec3) {
+        // tangent basis of the sphere at t
+        let a = if t.x.abs() < 0.9 {
+            Vec3::x()
+        } else {
+            Vec3::y()
+        };
+        let b1 = t.cross(&a).normalize();
+        let b2 = t.cross(&b1);
+        let r2 = r * crate::so3_exp(&Vec3::new(d[0], d[1], d[2]));
+        let t2 = (t + b1 * d[3] + b2 * d[4]).normalize();
+        (r2, t2)
+    };
+    let mut current = cost(&build(&r, &t));
+    let mut lambda = 1e-3;
+    for _ in 0..iterations {
+        let e0 = build(&r, &t);
+        let res: Vec<f64> = (0..n)
+            .map(|i| sampson_residual(&e0, &x1[i], &x2[i]))
+            .collect();
+        let mut jtj = SMatrix::<f64, 5, 5>::zeros();
+        let mut jtr = SMatrix::<f64, 5, 1>::zeros();
+        let h = 1e-7;
+        let mut cols: Vec<Vec<f64>> = Vec::with_capacity(5);
+        for k in 0..5 {
+            let mut d = SMatrix::<f64, 5, 1>::zeros();
+            d[k] = h;
+            let (rk, tk) = apply(&r, &t, &d);
+            let ek = build(&rk, &tk);
+            cols.push(
+                (0..n)
+                    .map(|i| (sampson_residual(&ek, &x1[i], &x2[i]) - res[i]) / h)
+                    .collect(),
+            );
+        }
+        for i in 0..n {
+            let j = SMatrix::<f64, 5, 1>::from_fn(|k, _| cols[k][i]);
+            jtj += j * j.transpose();
+            jtr += j * res[i];
+        }
+        let mut improved = false;
+        for _ in 0..6 {
+            let mut a = jtj;
+            for k in 0..5 {
+                a[(k, k)] += lambda * (jtj[(k, k)] + 1e-12);
+            }
+            let Some(d) = a.cholesky().map(|c| c.solve(&(-jtr))) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let (r2, t2) = apply(&r, &t, &d);
+            let c2 = cost(&build(&r2, &t2));
+            if c2 < current {
+                (r, t, current) = (r2, t2, c2);
+                lambda = (lambda * 0.1).max(1e-9);
+                improved = true;
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    let em = build(&r, &t);
+    em / em.norm()
+}
+
+/// Least-squares essential matrix from eight or more correspondences: the smallest
+/// eigenvector of `A^T A`, projected onto the essential manifold (singular values 1, 1, 0).
+pub fn linear_essential(x1: &[Vec3], x2: &[Vec3]) -> Option<Mat3> {
+    if x1.len() < 8 || x1.len() != x2.len() {
+        return None;
+    }
+    let mut ata = SMatrix::<f64, 9, 9>::zeros();
+    for (p, q) in x1.iter().zip(x2) {
+        let (a, b) = (p / p.z, q / q.z);
+        let row = SMatrix::<f64, 1, 9>::from_fn(|_, k| b[k / 3] * a[k % 3]);
+        ata += row.transpose() * row;
+    }
+    let eig = ata.symmetric_eigen();
+    let (k, _) = eig
+        .eigenvalues
+        .iter()
+        .enumerate()
+        .fold(
+            (0, f64::INFINITY),
+            |acc, (i, &v)| if v < acc.1 { (i, v) } else { acc },
+        );
+    let v = eig.eigenvectors.column(k);
+    let e = Mat3::from_fn(|r, c| v[3 * r + c]);
+    let svd = e.svd(true, true);
+    let (u, vt) = (svd.u?, svd.v_t?);
+    let e = u * Mat3::from_diagonal(&Vec3::new(1.0, 1.0, 0.0)) * vt;
+    let n = e.norm();
+    (n > 0.0 && n.is_finite()).then(|| e / n)
+}
+
+/// Linear (DLT) triangulation of one point seen by cameras `[I | 0]` and `[R | t]`;
+/// returns the point in camera 1.
+pub fn triangulate(r: &Mat3, t: &Vec3, x1: &Vec3, x2: &Vec3) -> Option<Vec3> {
+    let (a, b) = (x1 / x1.z, x2 / x2.z);
+    let p2 = |row: usize| nalgebra::RowVector4::new(r[(row, 0)], r[(row, 1)], r[(row, 2)], t[row]);
+    let p1 = |row: usize| {
+        let mut v = nalgebra::RowVector4::zeros();
+        v[row] = 1.0;
+        v
+    };
+    let mut m = SMatrix::<f64, 4, 4>::zeros();
+    m.set_row(0, &(p1(2) * a.x - p1(0)));
+    m.set_row(1, &(p1(2) * a.y - p1(1)));
+    m.set_row(2, &(p2(2) * b.x - p2(0)));
+    m.set_row(3, &(p2(2) * b.y - p2(1)));
+    let svd = m.svd(false, true);
+    let vt = svd.v_t?;
+    let (k, _) = svd
+        .singular_values
+        .iter()
+        .enumerate()
+        .fold(
+            (0, f64::INFINITY),
+            |acc, (i, &v)| if v < acc.1 { (i, v) } else { acc },
+        );
+    let h = vt.row(k);
+    if h[3].abs() < 1e-12 {
+        return None;
+    }
+    Some(Vector3::new(h[0] / h[3], h[1] / h[3], h[2] / h[3]))
+}
+
+/// Relative pose `T_cam2_cam1 = (R, t)` (with `|t| = 1`) from an essential matrix: of the
+/// four decompositions, the one with most inliers triangulated in front of both cameras
+/// (closer than `max_depth` baselines). Returns `(R, t, points in front)`.
+pub fn recover_pose(
+    e: &Mat3,
+    x1: &[Vec3],
+    x2: &[Vec3],
+    inliers: &[bool],
+    max_depth: f64,
+) -> (Mat3, Vec3, usize) {
+    let svd = e.svd(true, true);
+    let (Some(mut u), Some(mut vt)) = (svd.u, svd.v_t) else {
+        return (Mat3::identity(), Vec3::zeros(), 0);
+    };
+    if u.determinant() < 0.0 {
+        u = -u;
+    }
+    if vt.determinant() < 0.0 {
+        vt = -vt;
+    }
+    let w = Mat3::new(0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0);
+    let t = u.column(2).into_owned();
+    let candidates = [
+        (u * w * vt, t),
+        (u * w * vt, -t),
+        (u * w.transpose() * vt, t),
+        (u * w.transpose() * vt, -t),
+    ];
+    let mut best = (Mat3::identity(), Vec3::zeros(), 0usize);
+    for (r, t) in candidates {
+        let good = (0..x1.len().min(x2.len()))
+            .filter(|&i| inliers.get(i).copied().unwrap_or(false))
+            .filter(|&i| match triangulate(&r, &t, &x1[i], &x2[i]) {
+                Some(p) => {
+                    let z2 = (r * p + t).z;
+                    p.z > 0.0 && z2 > 0.0 && p.z < max_depth && z2 < max_depth
+                }
+                None => false,
+            })
+            .count();
+        if good > best.2 {
+            best = (r, t, good);
+        }
+    }
+    best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::so3_exp;
+    use proptest::prelude::*;
+
+    fn scene(seed: u64, n: usize, r: &Mat3, t: &Vec3) -> (Vec<Vec3>, Vec<Vec3>) {
+        let mut rng = Rng(seed | 1);
+        let mut u = || (rng.next() >> 11) as f64 / (1u64 << 53) as f64;
+        let mut x1 = Vec::new();
+        let mut x2 = Vec::new();
+        while x1.len() < n {
+            let p = Vec3::new(u() * 8.0 - 4.0, u() * 4.0 - 2.0, 4.0 + u() * 20.0);
+            let q = r * p + t;
+            if q.z > 0.5 {
+                x1.push(p / p.z);
+                x2.push(q / q.z);
+            }
+        }
+        (x1, x2)
+    }
+
+    #[test]
+    fn exact_solution_is_among_the_roots() {
+        let r = so3_exp(&Vec3::new(0.05, -0.2, 0.03));
+        let t = Vec3::new(0.2, 0.05, -1.0).normalize();
+        let (x1, x2) = scene(7, 5, &r, &t);
+        let truth = crate::rotation::skew(&t) * r;
+        let truth = truth / truth.norm();
+        let sols = five_point(
+            &std::array::from_fn(|i| x1[i]),
+            &std::array::from_fn(|i| x2[i]),
+        );
+        assert!(!sols.is_empty());
+        let best = sols
+            .iter()
+            .map(|e| (e - truth).norm().min((e + truth).norm()))
+            .fold(f64::INFINITY, f64::min);
+        assert!(best < 1e-6, "closest root is {best} away");
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(24))]
+        #[test]
+        fn ransac_recovers_motion_with_noise_and_outliers(seed in 1u64..1000, yaw in -0.3f64..0.3, tx in -0.5f64..0.5) {
+            let r = so3_exp(&Vec3::new(0.01, yaw, -0.02));
+            let t = Vec3::new(tx, 0.02, -1.0).normalize();
+            let (mut x1, mut x2) = scene(seed, 200, &r, &t);
+            let f = 700.0;
+            let mut rng = Rng(seed * 31 + 7);
+            let mut noise = || ((rng.next() >> 11) as f64 / (1u64 << 53) as f64 - 0.5) / f; // +-0.5 px
+            for i in 0..200 {
+                x1[i] += Vec3::new(noise(), noise(), 0.0);
+                x2[i] += Vec3::new(noise(), noise(), 0.0);
+            }
+            for i in 0..60 {
+                // 30 % outliers: scramble the second view
+                x2[i] = x2[(i * 7 + 13) % 200] + Vec3::new(0.05, -0.03, 0.0);
+            }
+            let est = find_essential(&x1, &x2, f, &RansacConfig::default()).unwrap();
+            prop_assert!(est.inlier_count() >= 130, "{} inliers", est.inlier_count());
+            let (rr, tt, good) = recover_pose(&est.e, &x1, &x2, &est.inliers, 1e4);
+            prop_assert!(good >= 120);
+            let rot_err = crate::rotation_angle(&(rr.transpose() * r));
+            prop_assert!(rot_err < 0.01, "rotation error {rot_err}");
+            prop_assert!(tt.dot(&t) > 0.99, "translation direction off: {tt} vs {t}");
+        }
+    }
+}
