@@ -3,6 +3,7 @@
 mod bench_cmd;
 mod eval_cmd;
 mod features_cmd;
+mod graph_cmd;
 mod models_cmd;
 
 use clap::{Parser, Subcommand};
@@ -23,6 +24,8 @@ enum Command {
     Models(models_cmd::ModelsArgs),
     /// Detect keypoints in an image with a learned extractor and print or save them.
     Features(features_cmd::FeaturesArgs),
+    /// Pose-graph optimisation of g2o files.
+    Graph(graph_cmd::GraphArgs),
     /// Benchmarks (medians of repeated calls), e.g. of the learned front end.
     Bench(bench_cmd::BenchArgs),
 }
@@ -41,6 +44,7 @@ fn main() -> ExitCode {
         Command::Models(args) => models_cmd::run(&args),
         Command::Features(args) => features_cmd::run(&args),
         Command::Bench(args) => bench_cmd::run(&args),
+        Command::Graph(args) => graph_cmd::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,238 @@
+//! Pose graphs: variables, between-factors, priors, robust kernels and the error GTSAM uses
+//! (`0.5 * sum |whitened residual|^2`, each residual whitened by the square root of its
+//! information matrix and, if robust, reweighted).
+
+use crate::lie::LieGroup;
+use nalgebra::{SMatrix, SVector};
+use std::path::PathBuf;
+
+/// Errors of graph IO and optimisation.
+#[derive(Debug, thiserror::Error)]
+pub enum GraphError {
+    /// File access.
+    #[error("{path}: {source}")]
+    Io {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A malformed line.
+    #[error("{path}:{line}: {message}")]
+    Parse {
+        /// File.
+        path: PathBuf,
+        /// 1-based line.
+        line: usize,
+        /// What is wrong.
+        message: String,
+    },
+    /// The graph as a whole is unusable.
+    #[error("{path}: {message}")]
+    Invalid {
+        /// File.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// Optimisation cannot start.
+    #[error("{0}")]
+    Setup(String),
+}
+
+/// A robust kernel applied to the whitened residual norm.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum Kernel {
+    /// Plain least squares.
+    #[default]
+    None,
+    /// Huber with threshold k.
+    Huber(f64),
+    /// Cauchy with scale k.
+    Cauchy(f64),
+}
+
+impl Kernel {
+    /// Cost of a whitened residual with squared norm `s2` (GTSAM's `loss`, so that the
+    /// plain case is `0.5 * s2`).
+    pub fn loss(&self, s2: f64) -> f64 {
+        match *self {
+            Kernel::None => 0.5 * s2,
+            Kernel::Huber(k) => {
+                let s = s2.sqrt();
+                if s <= k {
+                    0.5 * s2
+                } else {
+                    k * s - 0.5 * k * k
+                }
+            }
+            Kernel::Cauchy(k) => 0.5 * k * k * (1.0 + s2 / (k * k)).ln(),
+        }
+    }
+
+    /// Iteratively-reweighted least-squares weight at squared norm `s2`.
+    pub fn weight(&self, s2: f64) -> f64 {
+        match *self {
+            Kernel::None => 1.0,
+            Kernel::Huber(k) => {
+                let s = s2.sqrt();
+                if s <= k {
+                    1.0
+                } else {
+                    k / s
+                }
+            }
+            Kernel::Cauchy(k) => 1.0 / (1.0 + s2 / (k * k)),
+        }
+    }
+}
+
+/// Square root `R` (upper triangular, `R^T R = info`) of an information matrix, or why not.
+pub fn sqrt_information<const D: usize>(
+    info: &SMatrix<f64, D, D>,
+) -> Result<SMatrix<f64, D, D>, String> {
+    if info.iter().any(|v| !v.is_finite()) {
+        return Err("information matrix has non-finite entries".into());
+    }
+    let sym = (info + info.transpose()) * 0.5;
+    match nalgebra::Cholesky::new(sym) {
+        Some(c) => Ok(c.l().transpose()),
+        None => Err("information matrix is not positive definite".into()),
+    }
+}
+
+/// `measured ~ X_i^-1 X_j`.
+#[derive(Debug, Clone, Copy)]
+pub struct Between<G, const D: usize> {
+    /// First variable index.
+    pub i: usize,
+    /// Second variable index.
+    pub j: usize,
+    /// Measured relative pose.
+    pub measured: G,
+    /// Square-root information `R`.
+    pub sqrt_info: SMatrix<f64, D, D>,
+    /// Robust kernel.
+    pub kernel: Kernel,
+}
+
+impl<G: LieGroup<D>, const D: usize> Between<G, D> {
+    /// A between-factor with an information matrix (must be positive definite).
+    pub fn new(i: usize, j: usize, measured: G, info: &SMatrix<f64, D, D>) -> Result<Self, String> {
+        Ok(Self {
+            i,
+            j,
+            measured,
+            sqrt_info: sqrt_information(info)?,
+            kernel: Kernel::None,
+        })
+    }
+
+    /// Information matrix `R^T R`.
+    pub fn information(&self) -> SMatrix<f64, D, D> {
+        self.sqrt_info.transpose() * self.sqrt_info
+    }
+
+    /// Unwhitened residual `Log(Z^-1 X_i^-1 X_j)`.
+    pub fn residual(&self, xi: &G, xj: &G) -> SVector<f64, D> {
+        self.measured.between(&xi.between(xj)).log()
+    }
+
+    /// Residual and its Jacobians with respect to right perturbations of `X_i`, `X_j`.
+    pub fn linearize(
+        &self,
+        xi: &G,
+        xj: &G,
+    ) -> (SVector<f64, D>, SMatrix<f64, D, D>, SMatrix<f64, D, D>) {
+        let hx = xi.between(xj);
+        let e = self.measured.between(&hx).log();
+        let jinv = G::right_jacobian_inverse(&e);
+        let hj = jinv;
+        let hi = -(jinv * hx.inverse().adjoint());
+        (e, hi, hj)
+    }
+}
+
+/// `X_i ~ prior`.
+#[derive(Debug, Clone, Copy)]
+pub struct Prior<G, const D: usize> {
+    /// Variable index.
+    pub i: usize,
+    /// Prior value.
+    pub value: G,
+    /// Square-root information.
+    pub sqrt_info: SMatrix<f64, D, D>,
+}
+
+impl<G: LieGroup<D>, const D: usize> Prior<G, D> {
+    /// A prior with diagonal variances (in the tangent order of `G`).
+    pub fn with_variances(i: usize, value: G, variances: &[f64; D]) -> Self {
+        let sqrt_info = SMatrix::<f64, D, D>::from_fn(|r, c| {
+            if r == c {
+                1.0 / variances[r].sqrt()
+            } else {
+                0.0
+            }
+        });
+        Self {
+            i,
+            value,
+            sqrt_info,
+        }
+    }
+
+    /// Residual `Log(P^-1 X)` and its Jacobian.
+    pub fn linearize(&self, x: &G) -> (SVector<f64, D>, SMatrix<f64, D, D>) {
+        let e = self.value.between(x).log();
+        (e, G::right_jacobian_inverse(&e))
+    }
+}
+
+/// Variables (with their external keys) and factors.
+#[derive(Debug, Clone)]
+pub struct PoseGraph<G, const D: usize> {
+    /// External id of each variable (g2o vertex id).
+    pub keys: Vec<usize>,
+    /// Current values.
+    pub values: Vec<G>,
+    /// Between-factors.
+    pub between: Vec<Between<G, D>>,
+    /// Priors.
+    pub priors: Vec<Prior<G, D>>,
+}
+
+impl<G: LieGroup<D>, const D: usize> PoseGraph<G, D> {
+    /// A graph without factors.
+    pub fn new(keys: Vec<usize>, values: Vec<G>) -> Self {
+        Self {
+            keys,
+            values,
+            between: Vec::new(),
+            priors: Vec::new(),
+        }
+    }
+
+    /// Total error at `values` (GTSAM's definition).
+    pub fn error_at(&self, values: &[G]) -> f64 {
+        let b: f64 = self
+            .between
+            .iter()
+            .map(|f| {
+                let r = f.sqrt_info * f.residual(&values[f.i], &values[f.j]);
+                f.kernel.loss(r.norm_squared())
+            })
+            .sum();
+        let p: f64 = self
+            .priors
+            .iter()
+            .map(|f| 0.5 * (f.sqrt_info * f.value.between(&values[f.i]).log()).norm_squared())
+            .sum();
+        b + p
+    }
+
+    /// Total error at the current values.
+    pub fn error(&self) -> f64 {
+        self.error_at(&self.values)
+    }
+}

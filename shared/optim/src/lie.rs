@@ -1,0 +1,314 @@
+//! SE(2) and SE(3) as Lie groups, with GTSAM's conventions so errors and steps match it:
+//! tangent order `(x, y, theta)` for SE(2) and `(omega, v)` for SE(3); retraction
+//! `X * Exp(delta)`; `Local(a, b) = Log(a^-1 b)`.
+
+use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
+use supermvo_geometry::{skew, so3_exp, so3_log};
+
+/// A matrix Lie group with a `D`-dimensional tangent space.
+pub trait LieGroup<const D: usize>: Copy + std::fmt::Debug {
+    /// Identity element.
+    fn identity() -> Self;
+    /// `self * other`.
+    fn compose(&self, other: &Self) -> Self;
+    /// `self^-1`.
+    fn inverse(&self) -> Self;
+    /// Exponential map.
+    fn exp(xi: &SVector<f64, D>) -> Self;
+    /// Logarithm map.
+    fn log(&self) -> SVector<f64, D>;
+    /// Adjoint matrix: `self * Exp(xi) * self^-1 = Exp(Ad * xi)`.
+    fn adjoint(&self) -> SMatrix<f64, D, D>;
+    /// Lie bracket matrix `ad(xi)`.
+    fn ad(xi: &SVector<f64, D>) -> SMatrix<f64, D, D>;
+
+    /// `self^-1 * other`.
+    fn between(&self, other: &Self) -> Self {
+        self.inverse().compose(other)
+    }
+    /// `self * Exp(delta)`.
+    fn retract(&self, delta: &SVector<f64, D>) -> Self {
+        self.compose(&Self::exp(delta))
+    }
+    /// Inverse right Jacobian `J_r^-1(xi)`, with `Log(Exp(xi) Exp(d)) ~ xi + J_r^-1(xi) d`.
+    fn right_jacobian_inverse(xi: &SVector<f64, D>) -> SMatrix<f64, D, D> {
+        let jr = right_jacobian_series::<D>(&Self::ad(xi));
+        jr.try_inverse().unwrap_or_else(SMatrix::identity)
+    }
+}
+
+/// `J_r = sum_k (-ad)^k / (k + 1)!`, summed until the terms vanish (entire series).
+pub fn right_jacobian_series<const D: usize>(ad: &SMatrix<f64, D, D>) -> SMatrix<f64, D, D> {
+    let mut term = SMatrix::<f64, D, D>::identity();
+    let mut sum = term;
+    let minus = -ad;
+    for k in 1..60 {
+        term = term * minus / (k as f64 + 1.0);
+        sum += term;
+        if term.abs().max() < 1e-18 * (1.0 + sum.abs().max()) {
+            break;
+        }
+    }
+    sum
+}
+
+/// A planar rigid transform.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Se2 {
+    /// Translation x.
+    pub x: f64,
+    /// Translation y.
+    pub y: f64,
+    /// Heading, radians.
+    pub theta: f64,
+}
+
+impl Se2 {
+    /// From components.
+    pub fn new(x: f64, y: f64, theta: f64) -> Self {
+        Self { x, y, theta }
+    }
+}
+
+fn wrap(a: f64) -> f64 {
+    let r = a.sin().atan2(a.cos());
+    if r == -std::f64::consts::PI {
+        std::f64::consts::PI
+    } else {
+        r
+    }
+}
+
+impl LieGroup<3> for Se2 {
+    fn identity() -> Self {
+        Se2::new(0.0, 0.0, 0.0)
+    }
+    fn compose(&self, o: &Self) -> Self {
+        let (s, c) = self.theta.sin_cos();
+        Se2::new(
+            self.x + c * o.x - s * o.y,
+            self.y + s * o.x + c * o.y,
+            wrap(self.theta + o.theta),
+        )
+    }
+    fn inverse(&self) -> Self {
+        let (s, c) = self.theta.sin_cos();
+        Se2::new(
+            -(c * self.x + s * self.y),
+            -(-s * self.x + c * self.y),
+            wrap(-self.theta),
+        )
+    }
+    fn exp(xi: &SVector<f64, 3>) -> Self {
+        let (vx, vy, w) = (xi[0], xi[1], xi[2]);
+        if w.abs() < 1e-10 {
+            return Se2::new(vx, vy, w);
+        }
+        let (s, c) = w.sin_cos();
+        let (a, b) = (s / w, (1.0 - c) / w);
+        Se2::new(a * vx - b * vy, b * vx + a * vy, wrap(w))
+    }
+    fn log(&self) -> SVector<f64, 3> {
+        let w = self.theta;
+        if w.abs() < 1e-10 {
+            return SVector::<f64, 3>::new(self.x, self.y, w);
+        }
+        let (s, c) = w.sin_cos();
+        let (a, b) = (s / w, (1.0 - c) / w);
+        let det = a * a + b * b;
+        SVector::<f64, 3>::new(
+            (a * self.x + b * self.y) / det,
+            (-b * self.x + a * self.y) / det,
+            w,
+        )
+    }
+    fn adjoint(&self) -> SMatrix<f64, 3, 3> {
+        let (s, c) = self.theta.sin_cos();
+        SMatrix::<f64, 3, 3>::new(c, -s, self.y, s, c, -self.x, 0.0, 0.0, 1.0)
+    }
+    fn ad(xi: &SVector<f64, 3>) -> SMatrix<f64, 3, 3> {
+        SMatrix::<f64, 3, 3>::new(0.0, -xi[2], xi[1], xi[2], 0.0, -xi[0], 0.0, 0.0, 0.0)
+    }
+}
+
+/// A rigid transform in 3D: rotation matrix and translation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Se3 {
+    /// Rotation.
+    pub r: Matrix3<f64>,
+    /// Translation.
+    pub t: Vector3<f64>,
+}
+
+impl Se3 {
+    /// From a unit quaternion and translation.
+    pub fn from_quaternion(q: &UnitQuaternion<f64>, t: Vector3<f64>) -> Self {
+        Self {
+            r: q.to_rotation_matrix().into_inner(),
+            t,
+        }
+    }
+}
+
+/// `J_l(omega)` of SO(3) (maps tangent velocities to translation in Exp of SE(3)).
+fn so3_left_jacobian(w: &Vector3<f64>) -> Matrix3<f64> {
+    let th = w.norm();
+    let wx = skew(w);
+    if th < 1e-8 {
+        return Matrix3::identity() + 0.5 * wx + wx * wx / 6.0;
+    }
+    let th2 = th * th;
+    Matrix3::identity() + (1.0 - th.cos()) / th2 * wx + (th - th.sin()) / (th2 * th) * wx * wx
+}
+
+/// `J_l(omega)^-1` of SO(3).
+fn so3_left_jacobian_inverse(w: &Vector3<f64>) -> Matrix3<f64> {
+    let th = w.norm();
+    let wx = skew(w);
+    if th < 1e-8 {
+        return Matrix3::identity() - 0.5 * wx + wx * wx / 12.0;
+    }
+    let half = 0.5 * th;
+    let coef = (1.0 - half * half.cos() / half.sin()) / (th * th);
+    Matrix3::identity() - 0.5 * wx + coef * wx * wx
+}
+
+impl LieGroup<6> for Se3 {
+    fn identity() -> Self {
+        Se3 {
+            r: Matrix3::identity(),
+            t: Vector3::zeros(),
+        }
+    }
+    fn compose(&self, o: &Self) -> Self {
+        Se3 {
+            r: self.r * o.r,
+            t: self.r * o.t + self.t,
+        }
+    }
+    fn inverse(&self) -> Self {
+        let rt = self.r.transpose();
+        Se3 {
+            r: rt,
+            t: -(rt * self.t),
+        }
+    }
+    fn exp(xi: &SVector<f64, 6>) -> Self {
+        let w = Vector3::new(xi[0], xi[1], xi[2]);
+        let v = Vector3::new(xi[3], xi[4], xi[5]);
+        Se3 {
+            r: so3_exp(&w),
+            t: so3_left_jacobian(&w) * v,
+        }
+    }
+    fn log(&self) -> SVector<f64, 6> {
+        let w = so3_log(&self.r);
+        let v = so3_left_jacobian_inverse(&w) * self.t;
+        SVector::<f64, 6>::new(w.x, w.y, w.z, v.x, v.y, v.z)
+    }
+    fn adjoint(&self) -> SMatrix<f64, 6, 6> {
+        let mut a = SMatrix::<f64, 6, 6>::zeros();
+        a.fixed_view_mut::<3, 3>(0, 0).copy_from(&self.r);
+        a.fixed_view_mut::<3, 3>(3, 3).copy_from(&self.r);
+        a.fixed_view_mut::<3, 3>(3, 0)
+            .copy_from(&(skew(&self.t) * self.r));
+        a
+    }
+    /// Closed form: `J_r^-1 = [[A, 0], [-A Q_r A, A]]` with `A = J_r^-1(omega)` of SO(3)
+    /// and `Q_r(omega, v) = Q_l(-omega, -v)` (Barfoot, State Estimation for Robotics, 7.86);
+    /// near zero rotation the series is used.
+    fn right_jacobian_inverse(xi: &SVector<f64, 6>) -> SMatrix<f64, 6, 6> {
+        let w = Vector3::new(xi[0], xi[1], xi[2]);
+        let th = w.norm();
+        if th < 1e-2 {
+            let jr = right_jacobian_series::<6>(&Self::ad(xi));
+            return jr.try_inverse().unwrap_or_else(SMatrix::identity);
+        }
+        let (p, r) = (skew(&(-w)), skew(&(-Vector3::new(xi[3], xi[4], xi[5]))));
+        let (st, ct) = th.sin_cos();
+        let (t2, t3) = (th * th, th * th * th);
+        let (t4, t5) = (t3 * th, t3 * t2);
+        let prp = p * r * p;
+        let q = 0.5 * r
+            + (th - st) / t3 * (p * r + r * p + prp)
+            + (t2 + 2.0 * ct - 2.0) / (2.0 * t4) * (p * p * r + r * p * p - 3.0 * prp)
+            + (2.0 * th - 3.0 * st + th * ct) / (2.0 * t5) * (prp * p + p * prp);
+        let wx = skew(&w);
+        let a =
+            Matrix3::identity() + 0.5 * wx + (1.0 / t2 - (1.0 + ct) / (2.0 * th * st)) * wx * wx;
+        let mut j = SMatrix::<f64, 6, 6>::zeros();
+        j.fixed_view_mut::<3, 3>(0, 0).copy_from(&a);
+        j.fixed_view_mut::<3, 3>(3, 3).copy_from(&a);
+        j.fixed_view_mut::<3, 3>(3, 0).copy_from(&(-(a * q * a)));
+        j
+    }
+    fn ad(xi: &SVector<f64, 6>) -> SMatrix<f64, 6, 6> {
+        let wx = skew(&Vector3::new(xi[0], xi[1], xi[2]));
+        let vx = skew(&Vector3::new(xi[3], xi[4], xi[5]));
+        let mut a = SMatrix::<f64, 6, 6>::zeros();
+        a.fixed_view_mut::<3, 3>(0, 0).copy_from(&wx);
+        a.fixed_view_mut::<3, 3>(3, 3).copy_from(&wx);
+        a.fixed_view_mut::<3, 3>(3, 0).copy_from(&vx);
+        a
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn numeric_jr_inv<G: LieGroup<D>, const D: usize>(xi: &SVector<f64, D>) -> SMatrix<f64, D, D> {
+        let x = G::exp(xi);
+        let h = 1e-6;
+        let mut j = SMatrix::<f64, D, D>::zeros();
+        for k in 0..D {
+            let mut d = SVector::<f64, D>::zeros();
+            d[k] = h;
+            let plus = x.retract(&d).log();
+            d[k] = -h;
+            let minus = x.retract(&d).log();
+            j.set_column(k, &((plus - minus) / (2.0 * h)));
+        }
+        j
+    }
+
+    proptest! {
+        #[test]
+        fn se3_group_laws(a in proptest::array::uniform6(-1.5f64..1.5), b in proptest::array::uniform6(-1.5f64..1.5)) {
+            let (xa, xb) = (SVector::<f64, 6>::from(a), SVector::<f64, 6>::from(b));
+            let (pa, pb) = (Se3::exp(&xa), Se3::exp(&xb));
+            prop_assert!((pa.log() - xa).norm() < 1e-9, "log(exp(x)) = x");
+            let id = pa.compose(&pa.inverse());
+            prop_assert!(id.log().norm() < 1e-12, "x x^-1 = 1");
+            // adjoint: a Exp(x) a^-1 = Exp(Ad_a x)
+            let lhs = pa.compose(&Se3::exp(&xb)).compose(&pa.inverse());
+            let rhs = Se3::exp(&(pa.adjoint() * xb));
+            prop_assert!(lhs.between(&rhs).log().norm() < 1e-9);
+            // associativity
+            let c = Se3::exp(&(xa * 0.3));
+            let l = pa.compose(&pb).compose(&c);
+            let r = pa.compose(&pb.compose(&c));
+            prop_assert!(l.between(&r).log().norm() < 1e-12);
+            // inverse right Jacobian against finite differences
+            let jn = numeric_jr_inv::<Se3, 6>(&xa);
+            let closed = Se3::right_jacobian_inverse(&xa);
+            prop_assert!((closed - jn).abs().max() < 1e-6, "closed form vs finite differences");
+            let series = right_jacobian_series::<6>(&Se3::ad(&xa)).try_inverse().unwrap();
+            prop_assert!((closed - series).abs().max() < 1e-9, "closed form vs series");
+        }
+
+        #[test]
+        fn se2_group_laws(a in proptest::array::uniform3(-3.0f64..3.0), b in proptest::array::uniform3(-3.0f64..3.0)) {
+            let (xa, xb) = (SVector::<f64, 3>::from(a), SVector::<f64, 3>::from(b));
+            let pa = Se2::exp(&xa);
+            prop_assert!((pa.log() - xa).norm() < 1e-9);
+            prop_assert!(pa.compose(&pa.inverse()).log().norm() < 1e-12);
+            let lhs = pa.compose(&Se2::exp(&xb)).compose(&pa.inverse());
+            let rhs = Se2::exp(&(pa.adjoint() * xb));
+            prop_assert!(lhs.between(&rhs).log().norm() < 1e-9);
+            let jn = numeric_jr_inv::<Se2, 3>(&xa);
+            prop_assert!((Se2::right_jacobian_inverse(&xa) - jn).abs().max() < 1e-6);
+        }
+    }
+}
