@@ -10,6 +10,7 @@
 //! DejaVu Sans or Liberation Sans from the usual system directories.
 
 use crate::Evaluation;
+use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};
@@ -118,6 +119,31 @@ fn xz_ranges(trajs: &[&Trajectory]) -> (std::ops::Range<f64>, std::ops::Range<f6
     ((xc - half)..(xc + half), (zc - half)..(zc + half))
 }
 
+/// A metric x-z chart.
+type TopView<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// A top-view (x-z) chart with equal-aspect ranges and labelled axes.
+fn top_view_chart<'a, DB: DrawingBackend>(
+    area: &'a DrawingArea<DB, Shift>,
+    caption: &str,
+    caption_size: u32,
+    trajs: &[&Trajectory],
+) -> Result<TopView<'a, DB>, DrawingAreaErrorKind<DB::ErrorType>> {
+    let (xr, zr) = xz_ranges(trajs);
+    let mut chart = ChartBuilder::on(area)
+        .caption(caption, ("sans-serif", caption_size))
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(60)
+        .build_cartesian_2d(xr, zr)?;
+    chart
+        .configure_mesh()
+        .x_desc("x (m)")
+        .y_desc("z (m)")
+        .draw()?;
+    Ok(chart)
+}
+
 fn trajectory_xz(
     path: &Path,
     reference: &Trajectory,
@@ -128,20 +154,7 @@ fn trajectory_xz(
     root.fill(&WHITE).map_err(&e)?;
     let mut all: Vec<&Trajectory> = vec![reference];
     all.extend(results.iter().map(|(_, ev)| &ev.estimate));
-    let (xr, zr) = xz_ranges(&all);
-    let mut chart = ChartBuilder::on(&root)
-        .caption("Trajectory, top view (x-z)", ("sans-serif", 24))
-        .margin(15)
-        .x_label_area_size(45)
-        .y_label_area_size(60)
-        .build_cartesian_2d(xr, zr)
-        .map_err(&e)?;
-    chart
-        .configure_mesh()
-        .x_desc("x (m)")
-        .y_desc("z (m)")
-        .draw()
-        .map_err(&e)?;
+    let mut chart = top_view_chart(&root, "Trajectory, top view (x-z)", 24, &all).map_err(&e)?;
     chart
         .draw_series(LineSeries::new(
             reference.poses.iter().map(|p| (p.t.x, p.t.z)),
@@ -285,26 +298,12 @@ fn ape_path(path: &Path, label: &str, ev: &Evaluation) -> Result<(), PlotError> 
     let root = BitMapBackend::new(path, (1000, 900)).into_drawing_area();
     root.fill(&WHITE).map_err(&e)?;
     let (main, bar) = root.split_horizontally(860);
-    let (xr, zr) = xz_ranges(&[&ev.reference, &ev.estimate]);
     let errs = &ev.ape.trans.values;
     let (lo, hi) = (ev.ape.trans.stats.min, ev.ape.trans.stats.max);
     let span = (hi - lo).max(1e-12);
-    let mut chart = ChartBuilder::on(&main)
-        .caption(
-            format!("APE (translation) along the path: {label}"),
-            ("sans-serif", 22),
-        )
-        .margin(15)
-        .x_label_area_size(45)
-        .y_label_area_size(60)
-        .build_cartesian_2d(xr, zr)
-        .map_err(&e)?;
-    chart
-        .configure_mesh()
-        .x_desc("x (m)")
-        .y_desc("z (m)")
-        .draw()
-        .map_err(&e)?;
+    let caption = format!("APE (translation) along the path: {label}");
+    let mut chart =
+        top_view_chart(&main, &caption, 22, &[&ev.reference, &ev.estimate]).map_err(&e)?;
     chart
         .draw_series(LineSeries::new(
             ev.reference.poses.iter().map(|p| (p.t.x, p.t.z)),

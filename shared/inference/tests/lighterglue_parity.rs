@@ -4,41 +4,21 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
 
 use std::collections::HashSet;
-use std::path::{Path, PathBuf};
 use supermvo_inference::lighterglue::{normalize_keypoints, LightGlue, LightGlueConfig};
-use supermvo_inference::runtime::{init, open_session};
+use supermvo_inference::runtime::open_session;
 use supermvo_inference::xfeat::{XFeat, XFeatConfig};
-use supermvo_inference::{models, Extractor, GrayImage, Matcher};
+use supermvo_inference::{Extractor, GrayImage, Matcher};
 
-fn required() -> bool {
-    std::env::var("SUPERMVO_REQUIRE_SHARED").as_deref() == Ok("1")
-}
-
-fn setup() -> Option<(PathBuf, PathBuf, PathBuf)> {
-    let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared");
-    let (x, l) = (
-        models::model_path("xfeat"),
-        models::model_path("lighterglue-l3"),
-    );
-    if shared.join("models/reference").is_dir() && x.is_file() && l.is_file() && init(None).is_ok()
-    {
-        return Some((shared, x, l));
-    }
-    assert!(
-        !required(),
-        "shared data, ONNX Runtime or models missing: run 'supermvo models fetch'"
-    );
-    eprintln!("SKIP: shared data, ONNX Runtime or models (xfeat, lighterglue-l3) missing");
-    None
-}
+mod common;
 
 #[test]
 fn same_matches_as_independent_l3_export() {
-    let Some((shared, xfeat_path, l3_path)) = setup() else {
+    let Some((shared, m)) = common::setup(&["xfeat", "lighterglue-l3"]) else {
         return;
     };
+    let (xfeat_path, l3_path) = (&m[0], &m[1]);
     let mut xfeat = XFeat::new(
-        &xfeat_path,
+        xfeat_path,
         XFeatConfig {
             top_k: 1024,
             ..Default::default()
@@ -46,7 +26,7 @@ fn same_matches_as_independent_l3_export() {
     )
     .unwrap();
     let mut ours = LightGlue::new(
-        &l3_path,
+        l3_path,
         "lighterglue-l3",
         LightGlueConfig {
             threshold: 0.0,

@@ -1,65 +1,21 @@
 //! XFeat fidelity against the independent exports in ../shared/models/reference.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
 
-use std::path::{Path, PathBuf};
-use supermvo_inference::runtime::{init, open_session};
+use supermvo_inference::runtime::open_session;
 use supermvo_inference::xfeat::{resize_bilinear, XFeat, XFeatConfig};
-use supermvo_inference::{models, Extractor, GrayImage};
+use supermvo_inference::{Extractor, GrayImage};
 
-fn required() -> bool {
-    std::env::var("SUPERMVO_REQUIRE_SHARED").as_deref() == Ok("1")
-}
-
-fn shared() -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared");
-    if p.join("models/reference").is_dir() {
-        return Some(p);
-    }
-    assert!(
-        !required(),
-        "{} missing and SUPERMVO_REQUIRE_SHARED=1",
-        p.display()
-    );
-    eprintln!("SKIP: {} not found", p.display());
-    None
-}
-
-/// Our exported model and the runtime, or a skip (a failure in CI).
-fn our_model() -> Option<PathBuf> {
-    let m = models::model_path("xfeat");
-    if m.is_file() && init(None).is_ok() {
-        return Some(m);
-    }
-    assert!(
-        !required(),
-        "xfeat model or ONNX Runtime missing: run 'supermvo models fetch onnxruntime xfeat'"
-    );
-    eprintln!(
-        "SKIP: xfeat model or ONNX Runtime missing (run 'supermvo models fetch onnxruntime xfeat')"
-    );
-    None
-}
-
-fn run(
-    session: &mut ort::session::Session,
-    name: &str,
-    shape: [usize; 4],
-    data: &[f32],
-) -> Vec<Vec<f32>> {
-    let t = ort::value::TensorRef::from_array_view((shape, data)).unwrap();
-    let out = session.run(ort::inputs![name => t]).unwrap();
-    (0..out.len())
-        .map(|i| out[i].try_extract_tensor::<f32>().unwrap().1.to_vec())
-        .collect()
-}
+mod common;
+use common::run;
 
 #[test]
 fn raw_outputs_match_independent_export() {
-    let (Some(shared), Some(ours)) = (shared(), our_model()) else {
+    let Some((shared, m)) = common::setup(&["xfeat"]) else {
         return;
     };
+    let ours = &m[0];
     let mut a = open_session(
-        &ours,
+        ours,
         "xfeat",
         2,
         &["image"],
@@ -111,9 +67,10 @@ fn raw_outputs_match_independent_export() {
 fn keypoints_match_independent_end_to_end_export() {
     // xfeat_1024_640x360.onnx includes detection, top-1024 selection and descriptor
     // sampling in the graph; our Rust post-processing must pick the same keypoints.
-    let (Some(shared), Some(ours)) = (shared(), our_model()) else {
+    let Some((shared, m)) = common::setup(&["xfeat"]) else {
         return;
     };
+    let ours = &m[0];
     let full = GrayImage::load(&shared.join("data/kitti/sequences/00/image_0/000010.png")).unwrap();
     // a 360x640 portrait image: 360-pixel-wide crop, stretched vertically
     let (w, h) = (360usize, 640usize);
@@ -126,7 +83,7 @@ fn keypoints_match_independent_end_to_end_export() {
     }
     let img = GrayImage::new(w, h, data).unwrap();
     let mut xfeat = XFeat::new(
-        &ours,
+        ours,
         XFeatConfig {
             top_k: 1024,
             ..Default::default()
