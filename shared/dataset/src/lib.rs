@@ -17,5 +17,6 @@ pub use error::DatasetError;
 pub use image::GrayImage;
 pub use kitti::{read_times, Calibration, KittiSequence};
 pub use trajectory::{
-    read_trajectory, write_trajectory, PoseLines, Trajectory, TrajectoryFormat, ROTATION_TOLERANCE,
+    read_trajectory, write_trajectory, PoseLines, StampedPose, Trajectory, TrajectoryFormat,
+    ROTATION_TOLERANCE,
 };

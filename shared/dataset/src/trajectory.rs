@@ -51,6 +51,9 @@ pub struct Trajectory {
     pub stamps: Option<Vec<f64>>,
     /// Poses.
     pub poses: Vec<Pose>,
+    /// Unit quaternions `(w, x, y, z)` exactly as read from a TUM/EuRoC file, so that
+    /// writing the trajectory back reproduces them bit for bit (None when not read so).
+    pub quaternions: Option<Vec<[f64; 4]>>,
 }
 
 impl Trajectory {
@@ -72,6 +75,10 @@ impl Trajectory {
     /// Keeps only the poses (and stamps) at `ids`, in that order.
     pub fn select(&self, ids: &[usize]) -> Trajectory {
         Trajectory {
+            quaternions: self
+                .quaternions
+                .as_ref()
+                .map(|q| ids.iter().map(|&i| q[i]).collect()),
             stamps: self
                 .stamps
                 .as_ref()
@@ -89,7 +96,18 @@ impl Trajectory {
     }
 }
 
-/// Streaming reader: yields `(stamp, pose)` one data line at a time.
+/// One data line of a trajectory file.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StampedPose {
+    /// Timestamp in seconds (None for KITTI pose files).
+    pub stamp: Option<f64>,
+    /// The pose.
+    pub pose: Pose,
+    /// The quaternion `(w, x, y, z)` as written in the file (TUM/EuRoC).
+    pub quaternion: Option<[f64; 4]>,
+}
+
+/// Streaming reader: yields one [`StampedPose`] per data line.
 #[derive(Debug)]
 pub struct PoseLines<R> {
     reader: R,
@@ -119,7 +137,7 @@ impl<R: BufRead> PoseLines<R> {
         }
     }
 
-    fn parse_line(&self, line: &str) -> Result<(Option<f64>, Pose), DatasetError> {
+    fn parse_line(&self, line: &str) -> Result<StampedPose, DatasetError> {
         let (p, n) = (&self.path, self.line_no);
         let fields: Vec<&str> = match self.format {
             TrajectoryFormat::Euroc => line.split(',').collect(),
@@ -148,7 +166,11 @@ impl<R: BufRead> PoseLines<R> {
                 let r = Mat3::new(v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10]);
                 check_orthonormal(&r, ROTATION_TOLERANCE)
                     .map_err(|e| DatasetError::parse(p, n, e.to_string()))?;
-                Ok((None, Pose::new(r, Vec3::new(v[3], v[7], v[11]))))
+                Ok(StampedPose {
+                    stamp: None,
+                    pose: Pose::new(r, Vec3::new(v[3], v[7], v[11])),
+                    quaternion: None,
+                })
             }
             TrajectoryFormat::Tum | TrajectoryFormat::Euroc => {
                 let (stamp, t, (w, x, y, z)) = if self.format == TrajectoryFormat::Tum {
@@ -170,14 +192,18 @@ impl<R: BufRead> PoseLines<R> {
                 }
                 let pose = Pose::from_quaternion(w, x, y, z, t)
                     .ok_or_else(|| DatasetError::parse(p, n, "quaternion is zero"))?;
-                Ok((Some(stamp), pose))
+                Ok(StampedPose {
+                    stamp: Some(stamp),
+                    pose,
+                    quaternion: Some([w, x, y, z]),
+                })
             }
         }
     }
 }
 
 impl<R: BufRead> Iterator for PoseLines<R> {
-    type Item = Result<(Option<f64>, Pose), DatasetError>;
+    type Item = Result<StampedPose, DatasetError>;
 
     fn next(&mut self) -> Option<Self::Item> {
         loop {
@@ -202,12 +228,12 @@ impl<R: BufRead> Iterator for PoseLines<R> {
 pub fn read_trajectory(path: &Path, format: TrajectoryFormat) -> Result<Trajectory, DatasetError> {
     let mut stamps = Vec::new();
     let mut poses = Vec::new();
+    let mut quaternions = Vec::new();
     for item in PoseLines::open(path, format)? {
-        let (stamp, pose) = item?;
-        if let Some(s) = stamp {
-            stamps.push(s);
-        }
-        poses.push(pose);
+        let line = item?;
+        stamps.extend(line.stamp);
+        quaternions.extend(line.quaternion);
+        poses.push(line.pose);
     }
     if poses.is_empty() {
         return Err(DatasetError::Empty {
@@ -215,8 +241,12 @@ pub fn read_trajectory(path: &Path, format: TrajectoryFormat) -> Result<Trajecto
             expected: format.expected().to_string(),
         });
     }
-    let stamps = (format != TrajectoryFormat::Kitti).then_some(stamps);
-    Ok(Trajectory { stamps, poses })
+    let timed = format != TrajectoryFormat::Kitti;
+    Ok(Trajectory {
+        stamps: timed.then_some(stamps),
+        poses,
+        quaternions: timed.then_some(quaternions),
+    })
 }
 
 /// Formats one trajectory line in the given format.
@@ -225,6 +255,7 @@ fn format_line(
     format: TrajectoryFormat,
     stamp: Option<f64>,
     p: &Pose,
+    source_q: Option<[f64; 4]>,
 ) -> Result<(), std::fmt::Error> {
     match format {
         TrajectoryFormat::Kitti => {
@@ -247,7 +278,14 @@ fn format_line(
             )
         }
         TrajectoryFormat::Tum | TrajectoryFormat::Euroc => {
-            let q = p.quaternion();
+            // the quaternion as read, while the rotation is still the one it produced
+            let as_read = source_q.filter(|q| {
+                Pose::from_quaternion(q[0], q[1], q[2], q[3], p.t).is_some_and(|r| r.r == p.r)
+            });
+            let [w, x, y, z] = as_read.unwrap_or_else(|| {
+                let q = p.quaternion();
+                [q.w, q.i, q.j, q.k]
+            });
             writeln!(
                 out,
                 "{} {} {} {} {} {} {} {}",
@@ -255,10 +293,10 @@ fn format_line(
                 p.t.x,
                 p.t.y,
                 p.t.z,
-                q.i,
-                q.j,
-                q.k,
-                q.w
+                x,
+                y,
+                z,
+                w
             )
         }
     }
@@ -290,7 +328,8 @@ pub fn write_trajectory(
     for (i, p) in traj.poses.iter().enumerate() {
         line.clear();
         let stamp = traj.stamps.as_ref().and_then(|s| s.get(i).copied());
-        format_line(&mut line, format, stamp, p)
+        let source_q = traj.quaternions.as_ref().and_then(|q| q.get(i).copied());
+        format_line(&mut line, format, stamp, p, source_q)
             .map_err(|_| DatasetError::invalid(path, "formatting a pose failed"))?;
         w.write_all(line.as_bytes())
             .map_err(|e| DatasetError::io(path, e))?;
@@ -303,10 +342,7 @@ mod tests {
     use super::*;
     use std::io::Cursor;
 
-    fn parse(
-        text: &str,
-        format: TrajectoryFormat,
-    ) -> Result<Vec<(Option<f64>, Pose)>, DatasetError> {
+    fn parse(text: &str, format: TrajectoryFormat) -> Result<Vec<StampedPose>, DatasetError> {
         PoseLines::new(Cursor::new(text.to_string()), Path::new("mem.txt"), format).collect()
     }
 
@@ -351,8 +387,9 @@ mod tests {
             TrajectoryFormat::Euroc,
         )
         .unwrap();
-        assert_eq!(rows[0].0, Some(1.5));
-        assert_eq!(rows[0].1.t, Vec3::new(1.0, 2.0, 3.0));
+        assert_eq!(rows[0].stamp, Some(1.5));
+        assert_eq!(rows[0].pose.t, Vec3::new(1.0, 2.0, 3.0));
+        assert_eq!(rows[0].quaternion, Some([1.0, 0.0, 0.0, 0.0]));
     }
 
     #[test]
@@ -375,6 +412,7 @@ mod tests {
         let traj = Trajectory {
             stamps: Some(stamps),
             poses,
+            quaternions: None,
         };
         let k = dir.path().join("k.txt");
         write_trajectory(&k, TrajectoryFormat::Kitti, &traj).unwrap();
@@ -388,14 +426,34 @@ mod tests {
             assert_eq!(a.t, b.t);
             assert!((a.r - b.r).abs().max() < 1e-15);
         }
+        // A file read as TUM and written back as TUM reproduces the same numbers, so a
+        // second read is bit-identical: quaternions as read are reused by the writer.
         let t2 = dir.path().join("t2.txt");
         write_trajectory(&t2, TrajectoryFormat::Tum, &back).unwrap();
-        let again = read_trajectory(&t2, TrajectoryFormat::Tum).unwrap();
-        assert_eq!(again.stamps, back.stamps);
-        for (a, b) in again.poses.iter().zip(&back.poses) {
-            assert_eq!(a.t, b.t);
-            assert!((a.r - b.r).abs().max() < 1e-15);
-        }
+        assert_eq!(
+            std::fs::read_to_string(&t2).unwrap(),
+            std::fs::read_to_string(&t).unwrap()
+        );
+        assert_eq!(
+            read_trajectory(&t2, TrajectoryFormat::Tum).unwrap(),
+            back,
+            "TUM must round-trip bit for bit"
+        );
+        // and a file written by someone else (non-normalised quaternion, odd spacing) too
+        let foreign = dir.path().join("f.txt");
+        std::fs::write(
+            &foreign,
+            "1.5  1 2 3  0.1 0.2 0.3 0.93\n2.5 4 5 6 0 0 0 1.0001\n",
+        )
+        .unwrap();
+        let f = read_trajectory(&foreign, TrajectoryFormat::Tum).unwrap();
+        let f2 = dir.path().join("f2.txt");
+        write_trajectory(&f2, TrajectoryFormat::Tum, &f).unwrap();
+        assert_eq!(read_trajectory(&f2, TrajectoryFormat::Tum).unwrap(), f);
+        assert_eq!(
+            std::fs::read_to_string(&f2).unwrap(),
+            "1.5 1 2 3 0.1 0.2 0.3 0.93\n2.5 4 5 6 0 0 0 1.0001\n"
+        );
     }
 
     #[test]

@@ -205,6 +205,7 @@ pub fn align(
         Trajectory {
             stamps: estimate.stamps.clone(),
             poses,
+            quaternions: None,
         },
         applied,
     ))
