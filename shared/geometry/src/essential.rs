@@ -303,6 +303,24 @@ impl EssentialEstimate {
     }
 }
 
+/// Iterations for `confidence` of drawing at least one all-inlier sample of `sample` points
+/// when a fraction `w` of the data are inliers, capped at `max`. No inliers yet means `max`.
+pub(crate) fn ransac_iterations(w: f64, sample: i32, confidence: f64, max: usize) -> usize {
+    let p = w.clamp(0.0, 1.0).powi(sample);
+    if p <= f64::EPSILON {
+        return max;
+    }
+    if p >= 1.0 - f64::EPSILON {
+        return 1;
+    }
+    let n = (1.0 - confidence).ln() / (1.0 - p).ln();
+    if n.is_finite() {
+        (n.ceil() as usize).min(max)
+    } else {
+        max
+    }
+}
+
 struct Rng(u64);
 impl Rng {
     fn next(&mut self) -> u64 {
@@ -334,6 +352,7 @@ pub fn find_essential(
     let mut rng = Rng(cfg.seed.max(1));
     // (model, inliers, MSAC score = sum of min(d^2, thr^2)); lower score wins
     let mut best: Option<(Mat3, usize, f64)> = None;
+    let mut best_raw = f64::INFINITY;
     let mut needed = cfg.max_iterations;
     let mut it = 0;
     while it < needed.max(cfg.min_iterations).min(cfg.max_iterations) {
@@ -351,17 +370,20 @@ pub fn find_essential(
         let s2: [Vec3; 5] = std::array::from_fn(|i| x2[idx[i]]);
         for e in five_point(&s1, &s2) {
             let score = msac_score(&e, x1, x2, thr_sq);
-            if best.as_ref().is_none_or(|b| score < b.2) {
-                // a new best model: polish it before it sets the stopping criterion
+            // LO-RANSAC: a hypothesis that beats the best *unpolished* score so far is
+            // polished; the polished model then competes with the best polished one.
+            if score < best_raw {
+                best_raw = score;
                 let (e, count, score) = local_optimisation(e, score, x1, x2, thr_sq);
-                best = Some((e, count, score));
-                let w = count as f64 / n as f64;
-                let denom = (1.0 - w.powi(5)).max(1e-12).ln();
-                needed = if denom >= 0.0 {
-                    0
-                } else {
-                    ((1.0 - cfg.confidence).ln() / denom).ceil() as usize
-                };
+                if best.as_ref().is_none_or(|b| score < b.2) {
+                    best = Some((e, count, score));
+                    needed = ransac_iterations(
+                        count as f64 / n as f64,
+                        5,
+                        cfg.confidence,
+                        cfg.max_iterations,
+                    );
+                }
             }
         }
     }
@@ -652,6 +674,19 @@ mod tests {
     }
 
     #[test]
+    fn iteration_count() {
+        assert_eq!(
+            ransac_iterations(0.0, 5, 0.999, 1000),
+            1000,
+            "no inliers yet: keep sampling"
+        );
+        assert_eq!(ransac_iterations(1.0, 5, 0.999, 1000), 1);
+        // 50 % inliers, 5-point samples: log(0.001) / log(1 - 1/32) = 217.6
+        assert_eq!(ransac_iterations(0.5, 5, 0.999, 1000), 218);
+        assert_eq!(ransac_iterations(0.1, 5, 0.999, 1000), 1000);
+    }
+
+    #[test]
     fn exact_solution_is_among_the_roots() {
         let r = so3_exp(&Vec3::new(0.05, -0.2, 0.03));
         let t = Vec3::new(0.2, 0.05, -1.0).normalize();
@@ -670,31 +705,78 @@ mod tests {
         assert!(best < 1e-6, "closest root is {best} away");
     }
 
+    /// Noisy two-view problem: 200 points, +-0.5 px uniform noise, 30 % outliers (the first
+    /// 60 correspondences). Runs RANSAC and checks it against the true model on the same data.
+    fn check_case(seed: u64, yaw: f64, tx: f64) -> Result<(), String> {
+        let r = so3_exp(&Vec3::new(0.01, yaw, -0.02));
+        let t = Vec3::new(tx, 0.02, -1.0).normalize();
+        let (mut x1, mut x2) = scene(seed, 200, &r, &t);
+        let f = 700.0;
+        let mut rng = Rng(seed * 31 + 7);
+        let mut noise = || ((rng.next() >> 11) as f64 / (1u64 << 53) as f64 - 0.5) / f;
+        for i in 0..200 {
+            x1[i] += Vec3::new(noise(), noise(), 0.0);
+            x2[i] += Vec3::new(noise(), noise(), 0.0);
+        }
+        for i in 0..60 {
+            x2[i] = x2[(i * 7 + 13) % 200] + Vec3::new(0.05, -0.03, 0.0);
+        }
+        let est = find_essential(&x1, &x2, f, &RansacConfig::default()).ok_or("no estimate")?;
+        // the true model's inliers at the same 1 px threshold, on the same noisy data
+        let e_true = crate::rotation::skew(&t) * r;
+        let thr_sq = (1.0 / f) * (1.0 / f);
+        let truth = (0..200)
+            .filter(|&i| sampson_sq(&e_true, &x1[i], &x2[i]) < thr_sq)
+            .count();
+        let (rr, tt, good) = recover_pose(&est.e, &x1, &x2, &est.inliers, 1e4);
+        let msac = |e: &Mat3| {
+            (0..200)
+                .map(|i| sampson_sq(e, &x1[i], &x2[i]).min(thr_sq))
+                .sum::<f64>()
+                / thr_sq
+        };
+        if est.inlier_count() + 3 < truth {
+            return Err(format!(
+                "{} inliers, the true model has {truth}; rotation error {:.5} rad, t.dot {:.5}; MSAC score ours {:.2}, truth {:.2}",
+                est.inlier_count(),
+                crate::rotation_angle(&(rr.transpose() * r)),
+                tt.dot(&t),
+                msac(&est.e),
+                msac(&e_true)
+            ));
+        }
+        if (good as f64) < 0.9 * est.inlier_count() as f64 {
+            return Err(format!("only {good} points in front"));
+        }
+        let rot_err = crate::rotation_angle(&(rr.transpose() * r));
+        if rot_err >= 0.01 {
+            return Err(format!("rotation error {rot_err}"));
+        }
+        if tt.dot(&t) <= 0.99 {
+            return Err(format!("translation direction off: {tt} vs {t}"));
+        }
+        Ok(())
+    }
+
+    #[test]
+    fn near_pure_forward_motion() {
+        // found by the property test below with the old fixed inlier floor: the true model
+        // itself has fewer than 130 inliers at 1 px on this noise draw
+        check_case(433, -0.002303055021613858, 0.20235543015301014).unwrap();
+    }
+
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(24))]
+        // deterministic for CI: a fixed seed, no regression files
+        #![proptest_config(ProptestConfig {
+            cases: 64,
+            rng_seed: proptest::test_runner::RngSeed::Fixed(0x5eed),
+            failure_persistence: None,
+            ..ProptestConfig::default()
+        })]
         #[test]
         fn ransac_recovers_motion_with_noise_and_outliers(seed in 1u64..1000, yaw in -0.3f64..0.3, tx in -0.5f64..0.5) {
-            let r = so3_exp(&Vec3::new(0.01, yaw, -0.02));
-            let t = Vec3::new(tx, 0.02, -1.0).normalize();
-            let (mut x1, mut x2) = scene(seed, 200, &r, &t);
-            let f = 700.0;
-            let mut rng = Rng(seed * 31 + 7);
-            let mut noise = || ((rng.next() >> 11) as f64 / (1u64 << 53) as f64 - 0.5) / f; // +-0.5 px
-            for i in 0..200 {
-                x1[i] += Vec3::new(noise(), noise(), 0.0);
-                x2[i] += Vec3::new(noise(), noise(), 0.0);
-            }
-            for i in 0..60 {
-                // 30 % outliers: scramble the second view
-                x2[i] = x2[(i * 7 + 13) % 200] + Vec3::new(0.05, -0.03, 0.0);
-            }
-            let est = find_essential(&x1, &x2, f, &RansacConfig::default()).unwrap();
-            prop_assert!(est.inlier_count() >= 130, "{} inliers", est.inlier_count());
-            let (rr, tt, good) = recover_pose(&est.e, &x1, &x2, &est.inliers, 1e4);
-            prop_assert!(good >= 120);
-            let rot_err = crate::rotation_angle(&(rr.transpose() * r));
-            prop_assert!(rot_err < 0.01, "rotation error {rot_err}");
-            prop_assert!(tt.dot(&t) > 0.99, "translation direction off: {tt} vs {t}");
+            let outcome = check_case(seed, yaw, tx);
+            prop_assert!(outcome.is_ok(), "{:?}", outcome);
         }
     }
 }

@@ -4,6 +4,7 @@
 //! (`p_in_a = T_a_b * p_in_b`). Trajectories store `T_world_cam` per frame.
 
 pub mod essential;
+pub mod pnp;
 mod pose;
 mod rotation;
 mod sim3;

@@ -1,0 +1,359 @@
+//! Camera pose from 2D-3D correspondences: EPnP (Lepetit, Moreno-Noguer and Fua, 2009)
+//! inside RANSAC, refined by Gauss-Newton on the reprojection error.
+//!
+//! Conventions: `points_world[i]` is a 3D point in the world frame and `bearings[i]` its
+//! normalised image coordinates `(x, y, 1)` (`K^-1 [u v 1]^T`). The result is
+//! `T_cam_world = (R, t)`, with `p_cam = R p_world + t`.
+//!
+//! The EPnP used here takes the single-null-vector solution, which is exact for noise-free
+//! data with six or more points in general position (the RANSAC sample size is six); the
+//! Gauss-Newton refinement then minimises the reprojection error on all inliers.
+
+use crate::{Mat3, Vec3};
+use nalgebra::{SMatrix, SVector};
+
+/// Settings of PnP RANSAC.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PnpConfig {
+    /// Inlier threshold on the reprojection error, pixels.
+    pub threshold_px: f64,
+    /// Desired confidence.
+    pub confidence: f64,
+    /// Upper bound on iterations.
+    pub max_iterations: usize,
+    /// Sampler seed.
+    pub seed: u64,
+}
+
+impl Default for PnpConfig {
+    fn default() -> Self {
+        Self {
+            threshold_px: 2.0,
+            confidence: 0.999,
+            max_iterations: 1000,
+            seed: 0x9e37,
+        }
+    }
+}
+
+/// A PnP result.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PnpEstimate {
+    /// Rotation of `T_cam_world`.
+    pub r: Mat3,
+    /// Translation of `T_cam_world`.
+    pub t: Vec3,
+    /// Inlier flags.
+    pub inliers: Vec<bool>,
+}
+
+impl PnpEstimate {
+    /// Number of inliers.
+    pub fn inlier_count(&self) -> usize {
+        self.inliers.iter().filter(|&&b| b).count()
+    }
+}
+
+/// EPnP from six or more correspondences (single null vector); `None` if degenerate.
+pub fn epnp(points_world: &[Vec3], bearings: &[Vec3]) -> Option<(Mat3, Vec3)> {
+    let n = points_world.len().min(bearings.len());
+    if n < 6 {
+        return None;
+    }
+    // control points: centroid and principal directions
+    let c0 = points_world[..n].iter().sum::<Vec3>() / n as f64;
+    let mut cov = Mat3::zeros();
+    for p in &points_world[..n] {
+        let d = p - c0;
+        cov += d * d.transpose();
+    }
+    let eig = cov.symmetric_eigen();
+    let mut ctrl = [c0; 4];
+    for k in 0..3 {
+        let scale = (eig.eigenvalues[k].max(0.0) / n as f64).sqrt();
+        if scale < 1e-12 {
+            return None; // points (nearly) on a line or plane through a point
+        }
+        ctrl[k + 1] = c0 + eig.eigenvectors.column(k) * scale;
+    }
+    let basis = Mat3::from_columns(&[ctrl[1] - c0, ctrl[2] - c0, ctrl[3] - c0]);
+    let inv = basis.try_inverse()?;
+    let alphas: Vec<[f64; 4]> = points_world[..n]
+        .iter()
+        .map(|p| {
+            let a = inv * (p - c0);
+            [1.0 - a.x - a.y - a.z, a.x, a.y, a.z]
+        })
+        .collect();
+    // M^T M (12 x 12)
+    let mut mtm = SMatrix::<f64, 12, 12>::zeros();
+    for (a, b) in alphas.iter().zip(bearings) {
+        let (u, v) = (b.x / b.z, b.y / b.z);
+        let mut r1 = SVector::<f64, 12>::zeros();
+        let mut r2 = SVector::<f64, 12>::zeros();
+        for j in 0..4 {
+            r1[3 * j] = a[j];
+            r1[3 * j + 2] = -a[j] * u;
+            r2[3 * j + 1] = a[j];
+            r2[3 * j + 2] = -a[j] * v;
+        }
+        mtm += r1 * r1.transpose() + r2 * r2.transpose();
+    }
+    let e = mtm.symmetric_eigen();
+    let (k, _) =
+        e.eigenvalues.iter().enumerate().fold(
+            (0, f64::INFINITY),
+            |b, (i, &v)| if v < b.1 { (i, v) } else { b },
+        );
+    let v = e.eigenvectors.column(k);
+    let cam: Vec<Vec3> = (0..4)
+        .map(|j| Vec3::new(v[3 * j], v[3 * j + 1], v[3 * j + 2]))
+        .collect();
+    // scale from the distances between control points
+    let (mut num, mut den) = (0.0, 0.0);
+    for i in 0..4 {
+        for j in i + 1..4 {
+            let dc = (cam[i] - cam[j]).norm();
+            let dw = (ctrl[i] - ctrl[j]).norm();
+            num += dc * dw;
+            den += dc * dc;
+        }
+    }
+    if den <= 0.0 {
+        return None;
+    }
+    let mut beta = num / den;
+    // points must be in front of the camera
+    let depth0: f64 = (0..4).map(|j| alphas[0][j] * cam[j].z).sum::<f64>() * beta;
+    if depth0 < 0.0 {
+        beta = -beta;
+    }
+    let pc: Vec<Vec3> = alphas
+        .iter()
+        .map(|a| (0..4).map(|j| cam[j] * (a[j] * beta)).sum())
+        .collect();
+    // absolute orientation: p_cam = R p_world + t
+    let sim = crate::umeyama(&points_world[..n], &pc, false).ok()?;
+    Some((sim.rotation_matrix(), sim.translation))
+}
+
+fn reprojection_sq(r: &Mat3, t: &Vec3, p: &Vec3, b: &Vec3) -> f64 {
+    let q = r * p + t;
+    if q.z <= 1e-9 {
+        return f64::INFINITY;
+    }
+    let (u, v) = (b.x / b.z, b.y / b.z);
+    (q.x / q.z - u).powi(2) + (q.y / q.z - v).powi(2)
+}
+
+/// Gauss-Newton (with a few Levenberg steps) on the reprojection error of the given
+/// correspondences, perturbing `T_cam_world` on the left.
+pub fn refine_pose(
+    r: &Mat3,
+    t: &Vec3,
+    points_world: &[Vec3],
+    bearings: &[Vec3],
+    iterations: usize,
+) -> (Mat3, Vec3) {
+    let (mut r, mut t) = (*r, *t);
+    let cost = |r: &Mat3, t: &Vec3| {
+        points_world
+            .iter()
+            .zip(bearings)
+            .map(|(p, b)| reprojection_sq(r, t, p, b).min(1e6))
+            .sum::<f64>()
+    };
+    let mut current = cost(&r, &t);
+    let mut lambda = 1e-6;
+    for _ in 0..iterations {
+        let mut h = SMatrix::<f64, 6, 6>::zeros();
+        let mut g = SVector::<f64, 6>::zeros();
+        for (p, b) in points_world.iter().zip(bearings) {
+            let q = r * p + t;
+            if q.z <= 1e-9 {
+                continue;
+            }
+            let (iz, iz2) = (1.0 / q.z, 1.0 / (q.z * q.z));
+            let res = nalgebra::Vector2::new(q.x * iz - b.x / b.z, q.y * iz - b.y / b.z);
+            let dpi = SMatrix::<f64, 2, 3>::new(iz, 0.0, -q.x * iz2, 0.0, iz, -q.y * iz2);
+            // d q / d (omega, v) for T <- Exp(delta) T: [-[q]x | I]
+            let mut dq = SMatrix::<f64, 3, 6>::zeros();
+            dq.fixed_view_mut::<3, 3>(0, 0)
+                .copy_from(&(-crate::skew(&q)));
+            dq.fixed_view_mut::<3, 3>(0, 3).copy_from(&Mat3::identity());
+            let j = dpi * dq;
+            h += j.transpose() * j;
+            g += j.transpose() * res;
+        }
+        let mut improved = false;
+        for _ in 0..8 {
+            let mut a = h;
+            for k in 0..6 {
+                a[(k, k)] += lambda * (h[(k, k)] + 1e-12);
+            }
+            let Some(d) = a.cholesky().map(|c| c.solve(&(-g))) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let dr = crate::so3_exp(&Vec3::new(d[0], d[1], d[2]));
+            let (r2, t2) = (dr * r, dr * t + Vec3::new(d[3], d[4], d[5]));
+            let c2 = cost(&r2, &t2);
+            if c2 < current {
+                (r, t, current) = (r2, t2, c2);
+                lambda = (lambda * 0.1).max(1e-12);
+                improved = true;
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    (r, t)
+}
+
+/// PnP in RANSAC: EPnP on six-point samples, inliers by reprojection error (pixels, with
+/// `focal` to convert), then EPnP and Gauss-Newton refinement on the inliers of the best
+/// sample. `None` with fewer than six correspondences or no valid sample.
+pub fn solve_pnp_ransac(
+    points_world: &[Vec3],
+    bearings: &[Vec3],
+    focal: f64,
+    cfg: &PnpConfig,
+) -> Option<PnpEstimate> {
+    let n = points_world.len().min(bearings.len());
+    if n < 6 || focal <= 0.0 {
+        return None;
+    }
+    let thr_sq = (cfg.threshold_px / focal).powi(2);
+    let mut state = cfg.seed.max(1);
+    let mut next = || {
+        state ^= state >> 12;
+        state ^= state << 25;
+        state ^= state >> 27;
+        state.wrapping_mul(0x2545_f491_4f6c_dd1d)
+    };
+    let count = |r: &Mat3, t: &Vec3| {
+        (0..n)
+            .filter(|&i| reprojection_sq(r, t, &points_world[i], &bearings[i]) < thr_sq)
+            .count()
+    };
+    let mut best: Option<(Mat3, Vec3, usize)> = None;
+    let (mut it, mut needed) = (0, cfg.max_iterations);
+    while it < needed.min(cfg.max_iterations) {
+        it += 1;
+        let mut idx = [0usize; 6];
+        let mut k = 0;
+        while k < 6 {
+            let c = (next() % n as u64) as usize;
+            if !idx[..k].contains(&c) {
+                idx[k] = c;
+                k += 1;
+            }
+        }
+        let pw: Vec<Vec3> = idx.iter().map(|&i| points_world[i]).collect();
+        let bw: Vec<Vec3> = idx.iter().map(|&i| bearings[i]).collect();
+        let Some((r, t)) = epnp(&pw, &bw) else {
+            continue;
+        };
+        let c = count(&r, &t);
+        if best.as_ref().is_none_or(|b| c > b.2) {
+            best = Some((r, t, c));
+            needed = crate::essential::ransac_iterations(
+                c as f64 / n as f64,
+                6,
+                cfg.confidence,
+                cfg.max_iterations,
+            );
+        }
+    }
+    let (mut r, mut t, _) = best?;
+    // refine on the inliers, re-selecting them with the refined pose
+    for _ in 0..3 {
+        let inl: Vec<usize> = (0..n)
+            .filter(|&i| reprojection_sq(&r, &t, &points_world[i], &bearings[i]) < thr_sq)
+            .collect();
+        if inl.len() < 6 {
+            break;
+        }
+        let pw: Vec<Vec3> = inl.iter().map(|&i| points_world[i]).collect();
+        let bw: Vec<Vec3> = inl.iter().map(|&i| bearings[i]).collect();
+        (r, t) = refine_pose(&r, &t, &pw, &bw, 20);
+    }
+    let inliers = (0..n)
+        .map(|i| reprojection_sq(&r, &t, &points_world[i], &bearings[i]) < thr_sq)
+        .collect();
+    Some(PnpEstimate { r, t, inliers })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::so3_exp;
+
+    fn scene(n: usize, seed: u64) -> (Vec<Vec3>, Mat3, Vec3) {
+        let mut s = seed | 1;
+        let mut u = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let r = so3_exp(&Vec3::new(0.1, -0.4, 0.05));
+        let t = Vec3::new(0.5, -0.2, 3.0);
+        let mut pts = Vec::new();
+        while pts.len() < n {
+            let p = Vec3::new(u() * 20.0 - 10.0, u() * 6.0 - 3.0, u() * 30.0 - 5.0);
+            if (r * p + t).z > 1.0 {
+                pts.push(p);
+            }
+        }
+        (pts, r, t)
+    }
+
+    #[test]
+    fn epnp_is_exact_without_noise() {
+        let (pts, r, t) = scene(8, 3);
+        let bearings: Vec<Vec3> = pts
+            .iter()
+            .map(|p| {
+                let q = r * p + t;
+                q / q.z
+            })
+            .collect();
+        let (re, te) = epnp(&pts, &bearings).unwrap();
+        assert!(crate::rotation_angle(&(re.transpose() * r)) < 1e-8);
+        assert!((te - t).norm() < 1e-7);
+    }
+
+    #[test]
+    fn ransac_with_noise_and_outliers() {
+        let (pts, r, t) = scene(200, 11);
+        let f = 700.0;
+        let mut s = 99u64;
+        let mut noise = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            ((s >> 11) as f64 / (1u64 << 53) as f64 - 0.5) / f
+        };
+        let mut bearings: Vec<Vec3> = pts
+            .iter()
+            .map(|p| {
+                let q = r * p + t;
+                q / q.z
+            })
+            .collect();
+        for b in &mut bearings {
+            *b += Vec3::new(noise(), noise(), 0.0);
+        }
+        for b in bearings.iter_mut().take(60) {
+            *b = Vec3::new(b.y + 0.05, b.x - 0.1, 1.0);
+        }
+        let est = solve_pnp_ransac(&pts, &bearings, f, &PnpConfig::default()).unwrap();
+        assert!(est.inlier_count() >= 135, "{}", est.inlier_count());
+        assert!(crate::rotation_angle(&(est.r.transpose() * r)).to_degrees() < 0.05);
+        assert!((est.t - t).norm() < 0.02);
+    }
+}
