@@ -5,6 +5,7 @@ mod eval_cmd;
 mod features_cmd;
 mod graph_cmd;
 mod models_cmd;
+mod run_cmd;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -18,6 +19,8 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Run monocular VO on a KITTI-layout sequence, in process.
+    Run(run_cmd::RunArgs),
     /// Evaluate estimated trajectories against ground truth (APE, RPE, KITTI metric, plots).
     Eval(eval_cmd::EvalArgs),
     /// Obtain and list ONNX Runtime and the learned models.
@@ -41,6 +44,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Eval(args) => eval_cmd::run(&args),
+        Command::Run(args) => run_cmd::run(&args),
         Command::Models(args) => models_cmd::run(&args),
         Command::Features(args) => features_cmd::run(&args),
         Command::Bench(args) => bench_cmd::run(&args),

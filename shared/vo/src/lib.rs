@@ -1,0 +1,3 @@
+//! Monocular visual odometry: the [`stage::Stage`] abstraction and the [`tracker::Tracker`].
+pub mod stage;
+pub mod tracker;

@@ -1,0 +1,585 @@
+//! The monocular tracker: two-view initialisation, PnP tracking against the last keyframe's
+//! landmarks, keyframes with triangulation of new landmarks, re-initialisation when lost.
+//!
+//! Frames: `T_cam_world` maps world points into the camera; outputs carry `T_world_cam`.
+//! The world frame is the first keyframe's camera; the scale is fixed by the first
+//! two-view initialisation (unit baseline) and carried by the landmarks afterwards.
+//! There is no bundle adjustment yet, so drift accumulates.
+
+use crate::stage::Stage;
+use supermvo_dataset::{Calibration, GrayImage};
+use supermvo_geometry::essential::{find_essential, recover_pose, triangulate, RansacConfig};
+use supermvo_geometry::pnp::{solve_pnp_ransac, PnpConfig};
+use supermvo_geometry::{Mat3, Pose, Vec3};
+use supermvo_inference::{Extractor, Features, InferenceError, Matcher};
+
+/// Tracker settings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackerConfig {
+    /// Median keypoint displacement (pixels) needed before two-view initialisation.
+    pub min_parallax_px: f64,
+    /// Landmarks needed for a successful initialisation.
+    pub min_init_landmarks: usize,
+    /// PnP inliers below which tracking is lost.
+    pub min_tracked: usize,
+    /// New keyframe when fewer landmarks than this are tracked.
+    pub keyframe_min_tracked: usize,
+    /// Minimum parallax angle (degrees) of a newly triangulated landmark.
+    pub min_triangulation_parallax_deg: f64,
+    /// New keyframe after at most this many frames.
+    pub max_frames_between_keyframes: usize,
+    /// Essential-matrix RANSAC.
+    pub ransac: RansacConfig,
+    /// PnP RANSAC.
+    pub pnp: PnpConfig,
+}
+
+impl Default for TrackerConfig {
+    fn default() -> Self {
+        Self {
+            min_parallax_px: 20.0,
+            min_init_landmarks: 80,
+            min_tracked: 40,
+            keyframe_min_tracked: 100,
+            min_triangulation_parallax_deg: 1.0,
+            max_frames_between_keyframes: 3,
+            ransac: RansacConfig::default(),
+            pnp: PnpConfig::default(),
+        }
+    }
+}
+
+/// Tracking state of a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TrackingState {
+    /// Waiting for enough parallax to initialise.
+    Initializing,
+    /// Pose estimated.
+    Tracking,
+    /// Tracking failed on this frame; the tracker re-initialises.
+    Lost,
+}
+
+/// One input frame.
+#[derive(Debug, Clone)]
+pub struct FrameInput {
+    /// Frame index.
+    pub index: usize,
+    /// Timestamp, seconds.
+    pub stamp: f64,
+    /// The image.
+    pub image: GrayImage,
+}
+
+/// The tracker's result for one frame.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct FrameOutput {
+    /// Frame index.
+    pub index: usize,
+    /// Timestamp, seconds.
+    pub stamp: f64,
+    /// State.
+    pub state: TrackingState,
+    /// `T_world_cam` as a 3x4 row-major matrix, when estimated.
+    pub pose: Option<[f64; 12]>,
+    /// Keypoints detected.
+    pub keypoints: usize,
+    /// Matches to the reference keyframe.
+    pub matches: usize,
+    /// Inliers of the pose estimate.
+    pub inliers: usize,
+    /// Whether this frame became a keyframe.
+    pub keyframe: bool,
+    /// Landmarks in the map.
+    pub landmarks: usize,
+}
+
+/// A map point with every keyframe observation `(R_cw, t_cw, bearing)` of it.
+struct Landmark {
+    p: Vec3,
+    obs: Vec<(Mat3, Vec3, Vec3)>,
+}
+
+/// Linear multi-view triangulation (DLT over all observations).
+fn triangulate_multi(obs: &[(Mat3, Vec3, Vec3)]) -> Option<Vec3> {
+    let mut ata = nalgebra::Matrix4::<f64>::zeros();
+    for (r, t, b) in obs {
+        let (x, y) = (b.x / b.z, b.y / b.z);
+        let row = |k: usize| nalgebra::RowVector4::new(r[(k, 0)], r[(k, 1)], r[(k, 2)], t[k]);
+        for a in [row(2) * x - row(0), row(2) * y - row(1)] {
+            ata += a.transpose() * a;
+        }
+    }
+    let eig = ata.symmetric_eigen();
+    let (k, _) = eig
+        .eigenvalues
+        .iter()
+        .enumerate()
+        .fold(
+            (0, f64::INFINITY),
+            |acc, (i, &v)| if v < acc.1 { (i, v) } else { acc },
+        );
+    let h = eig.eigenvectors.column(k);
+    (h[3].abs() > 1e-12).then(|| Vec3::new(h[0] / h[3], h[1] / h[3], h[2] / h[3]))
+}
+
+struct Keyframe {
+    r: Mat3,
+    t: Vec3,
+    features: Features,
+    landmark: Vec<Option<usize>>,
+}
+
+/// The tracker (see module docs).
+pub struct Tracker {
+    extractor: Box<dyn Extractor + Send>,
+    matcher: Box<dyn Matcher + Send>,
+    calib: Calibration,
+    cfg: TrackerConfig,
+    landmarks: Vec<Landmark>,
+    keyframe: Option<Keyframe>,
+    frames_since_keyframe: usize,
+    /// Rotation and translation of `T_cam_world` of the reference used to re-initialise
+    /// after a loss (the last tracked pose), so the trajectory continues in one frame.
+    last_pose: (Mat3, Vec3),
+    /// Scale of the map (median landmark depth at initialisation), to carry across
+    /// re-initialisations.
+    scale: Option<f64>,
+}
+
+impl std::fmt::Debug for Tracker {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Tracker({} landmarks)", self.landmarks.len())
+    }
+}
+
+fn bearing(c: &Calibration, p: &[f32; 2]) -> Vec3 {
+    Vec3::new(
+        (p[0] as f64 - c.cx) / c.fx,
+        (p[1] as f64 - c.cy) / c.fy,
+        1.0,
+    )
+}
+
+fn pose_array(r: &Mat3, t: &Vec3) -> [f64; 12] {
+    // T_world_cam = (R^T, -R^T t)
+    let rw = r.transpose();
+    let tw = -(rw * t);
+    [
+        rw[(0, 0)],
+        rw[(0, 1)],
+        rw[(0, 2)],
+        tw.x,
+        rw[(1, 0)],
+        rw[(1, 1)],
+        rw[(1, 2)],
+        tw.y,
+        rw[(2, 0)],
+        rw[(2, 1)],
+        rw[(2, 2)],
+        tw.z,
+    ]
+}
+
+impl Tracker {
+    /// A tracker over the given front end and left-camera calibration.
+    pub fn new(
+        extractor: Box<dyn Extractor + Send>,
+        matcher: Box<dyn Matcher + Send>,
+        calib: Calibration,
+        cfg: TrackerConfig,
+    ) -> Self {
+        Self {
+            extractor,
+            matcher,
+            calib,
+            cfg,
+            landmarks: Vec::new(),
+            keyframe: None,
+            frames_since_keyframe: 0,
+            last_pose: (Mat3::identity(), Vec3::zeros()),
+            scale: None,
+        }
+    }
+
+    fn focal(&self) -> f64 {
+        0.5 * (self.calib.fx + self.calib.fy)
+    }
+
+    /// Triangulates matched keypoints between a keyframe and the current frame (both
+    /// `T_cam_world`), returning world points for pairs that are in front of both cameras,
+    /// reproject within 2 px and have the configured parallax.
+    fn triangulate_pairs(
+        &self,
+        kf: &Keyframe,
+        cur: &Features,
+        r: &Mat3,
+        t: &Vec3,
+        pairs: &[(usize, usize)],
+    ) -> Vec<(usize, usize, Vec3)> {
+        // relative pose T_cur_kf = T_cur_world * T_world_kf
+        let r_rel = r * kf.r.transpose();
+        let t_rel = t - r_rel * kf.t;
+        let thr = 2.0 / self.focal();
+        let mut out = Vec::new();
+        for &(a, b) in pairs {
+            let (x1, x2) = (
+                bearing(&self.calib, &kf.features.keypoints[a]),
+                bearing(&self.calib, &cur.keypoints[b]),
+            );
+            let Some(p_kf) = triangulate(&r_rel, &t_rel, &x1, &x2) else {
+                continue;
+            };
+            let p_cur = r_rel * p_kf + t_rel;
+            if p_kf.z <= 0.0 || p_cur.z <= 0.0 {
+                continue;
+            }
+            let e1 = ((p_kf.x / p_kf.z - x1.x).powi(2) + (p_kf.y / p_kf.z - x1.y).powi(2)).sqrt();
+            let e2 =
+                ((p_cur.x / p_cur.z - x2.x).powi(2) + (p_cur.y / p_cur.z - x2.y).powi(2)).sqrt();
+            let ray_kf = p_kf.normalize();
+            let ray_cur = (p_kf - (-(r_rel.transpose() * t_rel))).normalize();
+            let parallax = ray_kf.dot(&ray_cur).clamp(-1.0, 1.0).acos().to_degrees();
+            if e1 < thr && e2 < thr && parallax > self.cfg.min_triangulation_parallax_deg {
+                // world point: p_world = R_kf^T (p_kf - t_kf)
+                out.push((a, b, kf.r.transpose() * (p_kf - kf.t)));
+            }
+        }
+        out
+    }
+
+    fn output(
+        &self,
+        input: &FrameInput,
+        state: TrackingState,
+        pose: Option<(Mat3, Vec3)>,
+        f: &Features,
+        (matches, inliers): (usize, usize),
+        keyframe: bool,
+    ) -> FrameOutput {
+        FrameOutput {
+            index: input.index,
+            stamp: input.stamp,
+            state,
+            pose: pose.map(|(r, t)| pose_array(&r, &t)),
+            keypoints: f.len(),
+            matches,
+            inliers,
+            keyframe,
+            landmarks: self.landmarks.len(),
+        }
+    }
+
+    fn initialise(
+        &mut self,
+        input: &FrameInput,
+        cur: Features,
+    ) -> Result<FrameOutput, InferenceError> {
+        let Some(kf) = self.keyframe.take() else {
+            // first frame (or first after a loss): becomes the reference at the last pose
+            let (r, t) = self.last_pose;
+            let out = self.output(
+                input,
+                TrackingState::Initializing,
+                Some((r, t)),
+                &cur,
+                (0, 0),
+                true,
+            );
+            let n = cur.len();
+            self.keyframe = Some(Keyframe {
+                r,
+                t,
+                features: cur,
+                landmark: vec![None; n],
+            });
+            return Ok(out);
+        };
+        let m = self.matcher.match_features(&kf.features, &cur)?;
+        let mut disp: Vec<f64> = m
+            .pairs
+            .iter()
+            .map(|&(a, b)| {
+                let (p, q) = (kf.features.keypoints[a], cur.keypoints[b]);
+                ((p[0] - q[0]) as f64).hypot((p[1] - q[1]) as f64)
+            })
+            .collect();
+        disp.sort_by(f64::total_cmp);
+        let parallax = disp.get(disp.len() / 2).copied().unwrap_or(0.0);
+        if parallax < self.cfg.min_parallax_px || m.pairs.len() < self.cfg.min_init_landmarks {
+            let out = self.output(
+                input,
+                TrackingState::Initializing,
+                None,
+                &cur,
+                (m.pairs.len(), 0),
+                false,
+            );
+            self.keyframe = Some(kf);
+            return Ok(out);
+        }
+        let x1: Vec<Vec3> = m
+            .pairs
+            .iter()
+            .map(|&(a, _)| bearing(&self.calib, &kf.features.keypoints[a]))
+            .collect();
+        let x2: Vec<Vec3> = m
+            .pairs
+            .iter()
+            .map(|&(_, b)| bearing(&self.calib, &cur.keypoints[b]))
+            .collect();
+        let Some(est) = find_essential(&x1, &x2, self.focal(), &self.cfg.ransac) else {
+            let out = self.output(
+                input,
+                TrackingState::Initializing,
+                None,
+                &cur,
+                (m.pairs.len(), 0),
+                false,
+            );
+            self.keyframe = Some(kf);
+            return Ok(out);
+        };
+        let (r_rel, t_rel, _) = recover_pose(&est.e, &x1, &x2, &est.inliers, 1e3);
+        // scale: unit baseline at the first initialisation; afterwards keep the map's scale
+        // by scaling the baseline so the median depth matches the last map's median depth
+        let inl: Vec<(usize, usize)> = m
+            .pairs
+            .iter()
+            .zip(&est.inliers)
+            .filter(|(_, &b)| b)
+            .map(|(p, _)| *p)
+            .collect();
+        let probe = Keyframe {
+            r: Mat3::identity(),
+            t: Vec3::zeros(),
+            features: kf.features.clone(),
+            landmark: vec![],
+        };
+        let unit = self.triangulate_pairs(&probe, &cur, &r_rel, &t_rel, &inl);
+        if unit.len() < self.cfg.min_init_landmarks {
+            let out = self.output(
+                input,
+                TrackingState::Initializing,
+                None,
+                &cur,
+                (m.pairs.len(), unit.len()),
+                false,
+            );
+            self.keyframe = Some(kf);
+            return Ok(out);
+        }
+        let mut depths: Vec<f64> = unit.iter().map(|(_, _, p)| p.z).collect();
+        depths.sort_by(f64::total_cmp);
+        let median = depths[depths.len() / 2];
+        let s = match self.scale {
+            Some(target) => target / median,
+            None => {
+                self.scale = Some(median);
+                1.0
+            }
+        };
+        // current camera: T_cur_world = T_cur_kf * T_kf_world
+        let t_rel = t_rel * s;
+        let r = r_rel * kf.r;
+        let t = r_rel * kf.t + t_rel;
+        let tri = self.triangulate_pairs(&kf, &cur, &r, &t, &inl);
+        let mut landmark = vec![None; cur.len()];
+        for (a, b, p) in tri {
+            landmark[b] = Some(self.landmarks.len());
+            let obs = vec![
+                (kf.r, kf.t, bearing(&self.calib, &kf.features.keypoints[a])),
+                (r, t, bearing(&self.calib, &cur.keypoints[b])),
+            ];
+            self.landmarks.push(Landmark { p, obs });
+        }
+        let out = self.output(
+            input,
+            TrackingState::Tracking,
+            Some((r, t)),
+            &cur,
+            (m.pairs.len(), est.inlier_count()),
+            true,
+        );
+        self.last_pose = (r, t);
+        self.keyframe = Some(Keyframe {
+            r,
+            t,
+            features: cur,
+            landmark,
+        });
+        self.frames_since_keyframe = 0;
+        Ok(out)
+    }
+
+    fn track(&mut self, input: &FrameInput, cur: Features) -> Result<FrameOutput, InferenceError> {
+        let Some(kf) = self.keyframe.take() else {
+            return self.initialise(input, cur);
+        };
+        let m = self.matcher.match_features(&kf.features, &cur)?;
+        let with_lm: Vec<(usize, usize, usize)> = m
+            .pairs
+            .iter()
+            .filter_map(|&(a, b)| kf.landmark[a].map(|id| (a, b, id)))
+            .collect();
+        let pw: Vec<Vec3> = with_lm
+            .iter()
+            .map(|&(_, _, id)| self.landmarks[id].p)
+            .collect();
+        let bw: Vec<Vec3> = with_lm
+            .iter()
+            .map(|&(_, b, _)| bearing(&self.calib, &cur.keypoints[b]))
+            .collect();
+        let est = solve_pnp_ransac(&pw, &bw, self.focal(), &self.cfg.pnp);
+        let Some(est) = est.filter(|e| e.inlier_count() >= self.cfg.min_tracked) else {
+            // lost: re-initialise from this frame at the last known pose
+            let out = self.output(
+                input,
+                TrackingState::Lost,
+                None,
+                &cur,
+                (m.pairs.len(), 0),
+                false,
+            );
+            let n = cur.len();
+            let (r, t) = self.last_pose;
+            self.keyframe = Some(Keyframe {
+                r,
+                t,
+                features: cur,
+                landmark: vec![None; n],
+            });
+            self.landmarks_tracking_reset();
+            return Ok(out);
+        };
+        let (r, t) = (est.r, est.t);
+        if tracing::enabled!(tracing::Level::DEBUG) {
+            let mut errs: Vec<f64> = pw
+                .iter()
+                .zip(&bw)
+                .map(|(p, b)| {
+                    let q = r * p + t;
+                    ((q.x / q.z - b.x).powi(2) + (q.y / q.z - b.y).powi(2)).sqrt() * self.focal()
+                })
+                .collect();
+            errs.sort_by(f64::total_cmp);
+            let median = errs.get(errs.len() / 2).copied().unwrap_or(f64::NAN);
+            tracing::debug!(
+                frame = input.index,
+                matches = m.pairs.len(),
+                with_landmark = pw.len(),
+                inliers = est.inlier_count(),
+                reprojection_median_px = median,
+                "tracked"
+            );
+        }
+        self.last_pose = (r, t);
+        self.frames_since_keyframe += 1;
+        let tracked = est.inlier_count();
+        let need_kf = tracked < self.cfg.keyframe_min_tracked
+            || self.frames_since_keyframe >= self.cfg.max_frames_between_keyframes;
+        if !need_kf {
+            let out = self.output(
+                input,
+                TrackingState::Tracking,
+                Some((r, t)),
+                &cur,
+                (m.pairs.len(), tracked),
+                false,
+            );
+            self.keyframe = Some(kf);
+            return Ok(out);
+        }
+        // new keyframe: keep the inlier landmarks, triangulate the other matches
+        let mut landmark = vec![None; cur.len()];
+        let thr = 2.0 / self.focal();
+        for (k, &(_, b, id)) in with_lm.iter().enumerate() {
+            if !est.inliers[k] {
+                continue;
+            }
+            landmark[b] = Some(id);
+            // add the observation and re-triangulate from all of them when every
+            // observation still reprojects within the threshold
+            let lm = &mut self.landmarks[id];
+            lm.obs.push((r, t, bearing(&self.calib, &cur.keypoints[b])));
+            if let Some(p) = triangulate_multi(&lm.obs) {
+                let consistent = lm.obs.iter().all(|(ro, to, bo)| {
+                    let q = ro * p + to;
+                    q.z > 0.0
+                        && ((q.x / q.z - bo.x).powi(2) + (q.y / q.z - bo.y).powi(2)).sqrt() < thr
+                });
+                if consistent {
+                    lm.p = p;
+                }
+            }
+        }
+        let fresh: Vec<(usize, usize)> = m
+            .pairs
+            .iter()
+            .copied()
+            .filter(|&(a, b)| kf.landmark[a].is_none() && landmark[b].is_none())
+            .collect();
+        for (a, b, p) in self.triangulate_pairs(&kf, &cur, &r, &t, &fresh) {
+            landmark[b] = Some(self.landmarks.len());
+            let obs = vec![
+                (kf.r, kf.t, bearing(&self.calib, &kf.features.keypoints[a])),
+                (r, t, bearing(&self.calib, &cur.keypoints[b])),
+            ];
+            self.landmarks.push(Landmark { p, obs });
+        }
+        let out = self.output(
+            input,
+            TrackingState::Tracking,
+            Some((r, t)),
+            &cur,
+            (m.pairs.len(), tracked),
+            true,
+        );
+        self.keyframe = Some(Keyframe {
+            r,
+            t,
+            features: cur,
+            landmark,
+        });
+        self.frames_since_keyframe = 0;
+        Ok(out)
+    }
+
+    fn landmarks_tracking_reset(&mut self) {
+        self.frames_since_keyframe = 0;
+    }
+}
+
+impl Stage for Tracker {
+    type Input = FrameInput;
+    type Output = FrameOutput;
+    type Error = InferenceError;
+
+    fn name(&self) -> &'static str {
+        "tracking"
+    }
+
+    fn process(&mut self, input: FrameInput) -> Result<FrameOutput, InferenceError> {
+        let cur = self.extractor.extract(&input.image)?;
+        let initialised = self
+            .keyframe
+            .as_ref()
+            .is_some_and(|k| k.landmark.iter().any(|l| l.is_some()));
+        if initialised {
+            self.track(&input, cur)
+        } else {
+            self.initialise(&input, cur)
+        }
+    }
+}
+
+/// The pose of an output as a [`Pose`].
+pub fn output_pose(o: &FrameOutput) -> Option<Pose> {
+    o.pose.map(|p| {
+        Pose::new(
+            Mat3::new(p[0], p[1], p[2], p[4], p[5], p[6], p[8], p[9], p[10]),
+            Vec3::new(p[3], p[7], p[11]),
+        )
+    })
+}

@@ -1,0 +1,96 @@
+//! `supermvo run` end to end on the first frames of KITTI 00: outputs, determinism, bad input.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
+mod common;
+
+use std::path::Path;
+
+fn models_ready() -> bool {
+    let home = std::env::var_os("SUPERMVO_CACHE")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| Path::new(&std::env::var("HOME").unwrap()).join(".cache/supermvo"));
+    let ok = [
+        "models/xfeat.onnx",
+        "models/lighterglue.onnx",
+        "onnxruntime/1.31.1/libonnxruntime.so.1.31.1",
+    ]
+    .iter()
+    .all(|p| home.join(p).is_file());
+    if !ok {
+        assert!(
+            std::env::var("SUPERMVO_REQUIRE_SHARED").as_deref() != Ok("1"),
+            "run 'supermvo models fetch' first"
+        );
+        eprintln!("SKIP: models not fetched");
+    }
+    ok
+}
+
+#[test]
+fn runs_deterministically_with_report_and_evaluation() {
+    let Some(seq) = common::shared_data("kitti/sequences/00") else {
+        return;
+    };
+    if !models_ready() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    for out in [&a, &b] {
+        let r = common::supermvo(&[
+            "run",
+            seq.to_str().unwrap(),
+            "--max-frames",
+            "25",
+            "-q",
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    }
+    let ta = std::fs::read(a.join("trajectory.tum.txt")).unwrap();
+    assert_eq!(
+        ta,
+        std::fs::read(b.join("trajectory.tum.txt")).unwrap(),
+        "two runs must give bit-identical trajectories"
+    );
+    assert!(ta.len() > 100);
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(a.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["frames"], 25);
+    assert!(report["estimated"].as_u64().unwrap() >= 15, "{report}");
+    assert!(
+        report["eval"]["ape"]["trans"]["rmse"].is_f64(),
+        "evaluated against ../../poses/00.txt"
+    );
+    assert_eq!(report["frames_detail"].as_array().unwrap().len(), 25);
+    assert!(report["timing_ms"]["per_frame"].as_array().unwrap().len() == 25);
+    assert!(a.join("trajectory_xz.png").is_file());
+}
+
+#[test]
+fn bad_sequences_are_clear_errors() {
+    let d = tempfile::tempdir().unwrap();
+    // missing directory
+    let missing = d.path().join("nope");
+    common::expect_error(&["run", missing.to_str().unwrap()], &["nope", "not found"]);
+    // calibration without P0
+    let seq = d.path().join("sequences/05");
+    std::fs::create_dir_all(seq.join("image_0")).unwrap();
+    std::fs::write(seq.join("calib.txt"), "P1: 1 0 0 0 0 1 0 0 0 0 1 0\n").unwrap();
+    std::fs::write(seq.join("times.txt"), "0.0\n").unwrap();
+    common::expect_error(
+        &["run", seq.to_str().unwrap()],
+        &["calib.txt", "no 'P0:' line"],
+    );
+    // calibration that does not fit the images (principal point outside a 64x64 frame)
+    std::fs::write(
+        seq.join("calib.txt"),
+        "P0: 718.8 0 607.1 0 0 718.8 185.2 0 0 0 1 0\n",
+    )
+    .unwrap();
+    std::fs::write(seq.join("image_0/000000.png"), common::gradient_png(64, 64)).unwrap();
+    common::expect_error(
+        &["run", seq.to_str().unwrap()],
+        &["principal point", "outside the 64x64 images"],
+    );
+}
