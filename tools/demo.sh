@@ -1,20 +1,35 @@
 #!/usr/bin/env bash
-# The main job. For now: evaluate the seed paper's published KITTI 00 trajectory and the
-# ORB baseline against ground truth, with plots, into out/demo/.
+# The main job, for now:
+# 1. obtain ONNX Runtime and the models (PyPI, cached in ~/.cache/supermvo);
+# 2. run SuPerMVO's VO in process on the KITTI 00 clip and evaluate it (out/demo/vo/);
+# 3. evaluate the seed paper's published KITTI 00 trajectory and its ORB baseline (out/demo/paper/).
+# The multi-process daemon and the synthetic sequence of issues 6 and 7 will replace this.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash tools/setup.sh
 cargo build --release -p supermvo
-DATA=${SUPERMVO_SHARED:-../shared}/data/trajectories/supermvo-paper
-if [ ! -d "$DATA" ]; then
-  echo "demo: $DATA not found: it holds the published KITTI 00 trajectories (set SUPERMVO_SHARED)" >&2
-  exit 1
-fi
-mkdir -p out/demo
-./target/release/supermvo eval --format tum --t-max-diff 0.02 --align sim3 \
-  --gt "$DATA/00_gt_tum.txt" \
-  --est "supermvo-paper=$DATA/00_supermvo_tum.txt" \
-  --est "orb-baseline=$DATA/00_orb_tum.txt" \
-  --json out/demo/eval.json --plot out/demo
+./target/release/supermvo models fetch onnxruntime xfeat lighterglue
+SHARED=${SUPERMVO_SHARED:-../shared}
+SEQ=$SHARED/data/kitti/sequences/00
+PAPER=$SHARED/data/trajectories/supermvo-paper
+for d in "$SEQ" "$PAPER"; do
+  [ -d "$d" ] || { echo "demo: $d not found (set SUPERMVO_SHARED to the shared data folder)" >&2; exit 1; }
+done
+mkdir -p out/demo/vo out/demo/paper
+echo "== SuPerMVO VO on KITTI 00 (160 frames)"
+./target/release/supermvo run "$SEQ" --out out/demo/vo
 echo
-echo "demo: results in out/demo/eval.json, figures in out/demo/*.png"
+echo "== the seed paper's published KITTI 00 outputs"
+./target/release/supermvo eval --format tum --t-max-diff 0.02 --align sim3 -q \
+  --gt "$PAPER/00_gt_tum.txt" \
+  --est "supermvo-paper=$PAPER/00_supermvo_tum.txt" \
+  --est "orb-baseline=$PAPER/00_orb_tum.txt" \
+  --json out/demo/paper/eval.json --plot out/demo/paper
+python3 - <<'PY' 2>/dev/null || true
+import json
+r = json.load(open("out/demo/paper/eval.json"))
+for k, v in r.items():
+    print(f"{k}: APE RMSE after Sim(3) {v['ape']['trans']['rmse']:.3f} m")
+PY
+echo
+echo "demo: VO results in out/demo/vo/ (trajectory, report.json, figures); paper evaluation in out/demo/paper/"
