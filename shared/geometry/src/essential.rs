@@ -7,7 +7,7 @@
 //! `(R, t) = T_cam2_cam1` maps points from camera 1 into camera 2.
 
 use crate::{Mat3, Vec3};
-use nalgebra::{DMatrix, SMatrix, Vector3};
+use nalgebra::{DMatrix, SMatrix};
 use std::sync::OnceLock;
 
 /// Monomials of degree <= 3 in (x, y, z), ordered as the elimination needs:
@@ -214,14 +214,7 @@ pub fn five_point(x1: &[Vec3; 5], x2: &[Vec3; 5]) -> Vec<Mat3> {
         let shifted = a - SMatrix::<f64, 10, 10>::identity() * lambda;
         let s = shifted.svd(false, true);
         let Some(vt) = s.v_t else { continue };
-        let (k, _) = s
-            .singular_values
-            .iter()
-            .enumerate()
-            .fold(
-                (0, f64::INFINITY),
-                |b, (i, &v)| if v < b.1 { (i, v) } else { b },
-            );
+        let k = crate::argmin(s.singular_values.iter().copied());
         let v = vt.row(k);
         if v[9].abs() < 1e-12 {
             continue;
@@ -555,14 +548,7 @@ pub fn linear_essential(x1: &[Vec3], x2: &[Vec3]) -> Option<Mat3> {
         ata += row.transpose() * row;
     }
     let eig = ata.symmetric_eigen();
-    let (k, _) = eig
-        .eigenvalues
-        .iter()
-        .enumerate()
-        .fold(
-            (0, f64::INFINITY),
-            |acc, (i, &v)| if v < acc.1 { (i, v) } else { acc },
-        );
+    let k = crate::argmin(eig.eigenvalues.iter().copied());
     let v = eig.eigenvectors.column(k);
     let e = Mat3::from_fn(|r, c| v[3 * r + c]);
     let svd = e.svd(true, true);
@@ -575,33 +561,25 @@ pub fn linear_essential(x1: &[Vec3], x2: &[Vec3]) -> Option<Mat3> {
 /// Linear (DLT) triangulation of one point seen by cameras `[I | 0]` and `[R | t]`;
 /// returns the point in camera 1.
 pub fn triangulate(r: &Mat3, t: &Vec3, x1: &Vec3, x2: &Vec3) -> Option<Vec3> {
-    let (a, b) = (x1 / x1.z, x2 / x2.z);
-    let p2 = |row: usize| nalgebra::RowVector4::new(r[(row, 0)], r[(row, 1)], r[(row, 2)], t[row]);
-    let p1 = |row: usize| {
-        let mut v = nalgebra::RowVector4::zeros();
-        v[row] = 1.0;
-        v
-    };
-    let mut m = SMatrix::<f64, 4, 4>::zeros();
-    m.set_row(0, &(p1(2) * a.x - p1(0)));
-    m.set_row(1, &(p1(2) * a.y - p1(1)));
-    m.set_row(2, &(p2(2) * b.x - p2(0)));
-    m.set_row(3, &(p2(2) * b.y - p2(1)));
-    let svd = m.svd(false, true);
-    let vt = svd.v_t?;
-    let (k, _) = svd
-        .singular_values
-        .iter()
-        .enumerate()
-        .fold(
-            (0, f64::INFINITY),
-            |acc, (i, &v)| if v < acc.1 { (i, v) } else { acc },
-        );
-    let h = vt.row(k);
-    if h[3].abs() < 1e-12 {
-        return None;
+    triangulate_views(&[(Mat3::identity(), Vec3::zeros(), *x1), (*r, *t, *x2)])
+}
+
+/// Linear (DLT) triangulation from any number of views, each `(R_cw, t_cw, bearing)` with
+/// `p_cam = R_cw p + t_cw`; returns the point in the common (world) frame.
+pub fn triangulate_views(views: &[(Mat3, Vec3, Vec3)]) -> Option<Vec3> {
+    let mut ata = nalgebra::Matrix4::<f64>::zeros();
+    for (r, t, b) in views {
+        let (x, y) = (b.x / b.z, b.y / b.z);
+        let row = |k: usize| nalgebra::RowVector4::new(r[(k, 0)], r[(k, 1)], r[(k, 2)], t[k]);
+        for a in [row(2) * x - row(0), row(2) * y - row(1)] {
+            ata += a.transpose() * a;
+        }
     }
-    Some(Vector3::new(h[0] / h[3], h[1] / h[3], h[2] / h[3]))
+    let eig = ata.symmetric_eigen();
+    let h = eig
+        .eigenvectors
+        .column(crate::argmin(eig.eigenvalues.iter().copied()));
+    (h[3].abs() > 1e-12).then(|| Vec3::new(h[0] / h[3], h[1] / h[3], h[2] / h[3]))
 }
 
 /// Relative pose `T_cam2_cam1 = (R, t)` (with `|t| = 1`) from an essential matrix: of the

@@ -35,3 +35,15 @@ pub fn se3_from_parts(r: &Mat3, t: &Vec3) -> Se3 {
 }
 
 pub use rotation::check_orthonormal;
+
+/// Index of the smallest value (the first on ties); 0 for an empty input.
+pub fn argmin(values: impl IntoIterator<Item = f64>) -> usize {
+    values
+        .into_iter()
+        .enumerate()
+        .fold(
+            (0, f64::INFINITY),
+            |best, (i, v)| if v < best.1 { (i, v) } else { best },
+        )
+        .0
+}

@@ -100,11 +100,7 @@ pub fn epnp(points_world: &[Vec3], bearings: &[Vec3]) -> Option<(Mat3, Vec3)> {
         mtm += r1 * r1.transpose() + r2 * r2.transpose();
     }
     let e = mtm.symmetric_eigen();
-    let (k, _) =
-        e.eigenvalues.iter().enumerate().fold(
-            (0, f64::INFINITY),
-            |b, (i, &v)| if v < b.1 { (i, v) } else { b },
-        );
+    let k = crate::argmin(e.eigenvalues.iter().copied());
     let v = e.eigenvectors.column(k);
     let cam: Vec<Vec3> = (0..4)
         .map(|j| Vec3::new(v[3 * j], v[3 * j + 1], v[3 * j + 2]))

@@ -8,7 +8,9 @@
 
 use crate::stage::Stage;
 use supermvo_dataset::{Calibration, GrayImage};
-use supermvo_geometry::essential::{find_essential, recover_pose, triangulate, RansacConfig};
+use supermvo_geometry::essential::{
+    find_essential, recover_pose, triangulate, triangulate_views, RansacConfig,
+};
 use supermvo_geometry::pnp::{solve_pnp_ransac, PnpConfig};
 use supermvo_geometry::{Mat3, Pose, Vec3};
 use supermvo_inference::{Extractor, Features, InferenceError, Matcher};
@@ -101,29 +103,6 @@ struct Landmark {
     obs: Vec<(Mat3, Vec3, Vec3)>,
 }
 
-/// Linear multi-view triangulation (DLT over all observations).
-fn triangulate_multi(obs: &[(Mat3, Vec3, Vec3)]) -> Option<Vec3> {
-    let mut ata = nalgebra::Matrix4::<f64>::zeros();
-    for (r, t, b) in obs {
-        let (x, y) = (b.x / b.z, b.y / b.z);
-        let row = |k: usize| nalgebra::RowVector4::new(r[(k, 0)], r[(k, 1)], r[(k, 2)], t[k]);
-        for a in [row(2) * x - row(0), row(2) * y - row(1)] {
-            ata += a.transpose() * a;
-        }
-    }
-    let eig = ata.symmetric_eigen();
-    let (k, _) = eig
-        .eigenvalues
-        .iter()
-        .enumerate()
-        .fold(
-            (0, f64::INFINITY),
-            |acc, (i, &v)| if v < acc.1 { (i, v) } else { acc },
-        );
-    let h = eig.eigenvectors.column(k);
-    (h[3].abs() > 1e-12).then(|| Vec3::new(h[0] / h[3], h[1] / h[3], h[2] / h[3]))
-}
-
 struct Keyframe {
     r: Mat3,
     t: Vec3,
@@ -201,6 +180,16 @@ impl Tracker {
             last_pose: (Mat3::identity(), Vec3::zeros()),
             scale: None,
         }
+    }
+
+    /// Adds a landmark seen by two cameras `(R_cw, t_cw, keypoint)`; returns its id.
+    fn add_landmark(&mut self, p: Vec3, views: [(Mat3, Vec3, &[f32; 2]); 2]) -> usize {
+        let obs = views
+            .iter()
+            .map(|(r, t, k)| (*r, *t, bearing(&self.calib, k)))
+            .collect();
+        self.landmarks.push(Landmark { p, obs });
+        self.landmarks.len() - 1
     }
 
     fn focal(&self) -> f64 {
@@ -387,12 +376,13 @@ impl Tracker {
         let tri = self.triangulate_pairs(&kf, &cur, &r, &t, &inl);
         let mut landmark = vec![None; cur.len()];
         for (a, b, p) in tri {
-            landmark[b] = Some(self.landmarks.len());
-            let obs = vec![
-                (kf.r, kf.t, bearing(&self.calib, &kf.features.keypoints[a])),
-                (r, t, bearing(&self.calib, &cur.keypoints[b])),
-            ];
-            self.landmarks.push(Landmark { p, obs });
+            landmark[b] = Some(self.add_landmark(
+                p,
+                [
+                    (kf.r, kf.t, &kf.features.keypoints[a]),
+                    (r, t, &cur.keypoints[b]),
+                ],
+            ));
         }
         let out = self.output(
             input,
@@ -503,7 +493,7 @@ impl Tracker {
             // observation still reprojects within the threshold
             let lm = &mut self.landmarks[id];
             lm.obs.push((r, t, bearing(&self.calib, &cur.keypoints[b])));
-            if let Some(p) = triangulate_multi(&lm.obs) {
+            if let Some(p) = triangulate_views(&lm.obs) {
                 let consistent = lm.obs.iter().all(|(ro, to, bo)| {
                     let q = ro * p + to;
                     q.z > 0.0
@@ -521,12 +511,13 @@ impl Tracker {
             .filter(|&(a, b)| kf.landmark[a].is_none() && landmark[b].is_none())
             .collect();
         for (a, b, p) in self.triangulate_pairs(&kf, &cur, &r, &t, &fresh) {
-            landmark[b] = Some(self.landmarks.len());
-            let obs = vec![
-                (kf.r, kf.t, bearing(&self.calib, &kf.features.keypoints[a])),
-                (r, t, bearing(&self.calib, &cur.keypoints[b])),
-            ];
-            self.landmarks.push(Landmark { p, obs });
+            landmark[b] = Some(self.add_landmark(
+                p,
+                [
+                    (kf.r, kf.t, &kf.features.keypoints[a]),
+                    (r, t, &cur.keypoints[b]),
+                ],
+            ));
         }
         let out = self.output(
             input,
