@@ -1,3 +1,4 @@
 //! Monocular visual odometry: the [`stage::Stage`] abstraction and the [`tracker::Tracker`].
+pub mod ba;
 pub mod stage;
 pub mod tracker;

@@ -30,6 +30,8 @@ pub struct TrackerConfig {
     pub min_triangulation_parallax_deg: f64,
     /// New keyframe after at most this many frames.
     pub max_frames_between_keyframes: usize,
+    /// Keyframes in the local bundle adjustment window (0 disables it).
+    pub local_ba_window: usize,
     /// Essential-matrix RANSAC.
     pub ransac: RansacConfig,
     /// PnP RANSAC.
@@ -43,8 +45,9 @@ impl Default for TrackerConfig {
             min_init_landmarks: 80,
             min_tracked: 40,
             keyframe_min_tracked: 100,
-            min_triangulation_parallax_deg: 1.0,
+            min_triangulation_parallax_deg: 0.5,
             max_frames_between_keyframes: 3,
+            local_ba_window: 6,
             ransac: RansacConfig::default(),
             pnp: PnpConfig::default(),
         }
@@ -97,13 +100,14 @@ pub struct FrameOutput {
     pub landmarks: usize,
 }
 
-/// A map point with every keyframe observation `(R_cw, t_cw, bearing)` of it.
+/// A map point with every keyframe observation `(keyframe id, bearing)` of it.
 struct Landmark {
     p: Vec3,
-    obs: Vec<(Mat3, Vec3, Vec3)>,
+    obs: Vec<(usize, Vec3)>,
 }
 
 struct Keyframe {
+    id: usize,
     r: Mat3,
     t: Vec3,
     features: Features,
@@ -117,6 +121,8 @@ pub struct Tracker {
     calib: Calibration,
     cfg: TrackerConfig,
     landmarks: Vec<Landmark>,
+    /// `T_cam_world` of every keyframe, by id (refined by the local BA).
+    keyframe_poses: Vec<(Mat3, Vec3)>,
     keyframe: Option<Keyframe>,
     frames_since_keyframe: usize,
     /// Rotation and translation of `T_cam_world` of the reference used to re-initialise
@@ -175,6 +181,7 @@ impl Tracker {
             calib,
             cfg,
             landmarks: Vec::new(),
+            keyframe_poses: Vec::new(),
             keyframe: None,
             frames_since_keyframe: 0,
             last_pose: (Mat3::identity(), Vec3::zeros()),
@@ -182,14 +189,75 @@ impl Tracker {
         }
     }
 
-    /// Adds a landmark seen by two cameras `(R_cw, t_cw, keypoint)`; returns its id.
-    fn add_landmark(&mut self, p: Vec3, views: [(Mat3, Vec3, &[f32; 2]); 2]) -> usize {
+    /// Adds a landmark seen by two keyframes `(keyframe id, keypoint)`; returns its id.
+    fn add_landmark(&mut self, p: Vec3, views: [(usize, &[f32; 2]); 2]) -> usize {
         let obs = views
             .iter()
-            .map(|(r, t, k)| (*r, *t, bearing(&self.calib, k)))
+            .map(|(k, kp)| (*k, bearing(&self.calib, kp)))
             .collect();
         self.landmarks.push(Landmark { p, obs });
         self.landmarks.len() - 1
+    }
+
+    /// Registers a keyframe pose and returns its id.
+    fn new_keyframe_id(&mut self, r: Mat3, t: Vec3) -> usize {
+        self.keyframe_poses.push((r, t));
+        self.keyframe_poses.len() - 1
+    }
+
+    /// Local bundle adjustment over the last `local_ba_window` keyframes (the two oldest fixed) and
+    /// the landmarks they observe at least twice; writes the refined poses and points back.
+    fn local_ba(&mut self) {
+        let window = self.cfg.local_ba_window;
+        let n = self.keyframe_poses.len();
+        if window < 3 || n < 3 {
+            return;
+        }
+        let first = n.saturating_sub(window);
+        let mut point_ids = Vec::new();
+        let mut observations = Vec::new();
+        for (id, lm) in self.landmarks.iter().enumerate() {
+            let inside: Vec<&(usize, Vec3)> = lm.obs.iter().filter(|(k, _)| *k >= first).collect();
+            if inside.len() < 2 {
+                continue;
+            }
+            let pi = point_ids.len();
+            point_ids.push(id);
+            for (k, b) in inside {
+                observations.push(crate::ba::Observation {
+                    kf: k - first,
+                    point: pi,
+                    bearing: *b,
+                });
+            }
+        }
+        if point_ids.len() < 20 {
+            return;
+        }
+        let mut ba = crate::ba::LocalBa {
+            poses: self.keyframe_poses[first..].to_vec(),
+            fixed: (first..n).map(|k| k < first + 2).collect(),
+            points: point_ids.iter().map(|&id| self.landmarks[id].p).collect(),
+            observations,
+            huber: 2.0 / self.focal(),
+        };
+        let (c0, c1) = ba.solve(10);
+        tracing::debug!(
+            keyframes = n - first,
+            points = point_ids.len(),
+            observations = ba.observations.len(),
+            cost_before = c0,
+            cost_after = c1,
+            "local BA"
+        );
+        self.keyframe_poses[first..].copy_from_slice(&ba.poses);
+        for (i, &id) in point_ids.iter().enumerate() {
+            self.landmarks[id].p = ba.points[i];
+        }
+        if let Some(kf) = self.keyframe.as_mut() {
+            (kf.r, kf.t) = self.keyframe_poses[kf.id];
+            self.last_pose = (kf.r, kf.t);
+        }
     }
 
     fn focal(&self) -> f64 {
@@ -277,7 +345,9 @@ impl Tracker {
                 true,
             );
             let n = cur.len();
+            let id = self.new_keyframe_id(r, t);
             self.keyframe = Some(Keyframe {
+                id,
                 r,
                 t,
                 features: cur,
@@ -341,6 +411,7 @@ impl Tracker {
             .map(|(p, _)| *p)
             .collect();
         let probe = Keyframe {
+            id: usize::MAX,
             r: Mat3::identity(),
             t: Vec3::zeros(),
             features: kf.features.clone(),
@@ -374,13 +445,14 @@ impl Tracker {
         let r = r_rel * kf.r;
         let t = r_rel * kf.t + t_rel;
         let tri = self.triangulate_pairs(&kf, &cur, &r, &t, &inl);
+        let cur_id = self.new_keyframe_id(r, t);
         let mut landmark = vec![None; cur.len()];
         for (a, b, p) in tri {
             landmark[b] = Some(self.add_landmark(
                 p,
                 [
-                    (kf.r, kf.t, &kf.features.keypoints[a]),
-                    (r, t, &cur.keypoints[b]),
+                    (kf.id, &kf.features.keypoints[a]),
+                    (cur_id, &cur.keypoints[b]),
                 ],
             ));
         }
@@ -394,12 +466,14 @@ impl Tracker {
         );
         self.last_pose = (r, t);
         self.keyframe = Some(Keyframe {
+            id: cur_id,
             r,
             t,
             features: cur,
             landmark,
         });
         self.frames_since_keyframe = 0;
+        self.local_ba();
         Ok(out)
     }
 
@@ -434,7 +508,9 @@ impl Tracker {
             );
             let n = cur.len();
             let (r, t) = self.last_pose;
+            let id = self.new_keyframe_id(r, t);
             self.keyframe = Some(Keyframe {
+                id,
                 r,
                 t,
                 features: cur,
@@ -482,6 +558,7 @@ impl Tracker {
             return Ok(out);
         }
         // new keyframe: keep the inlier landmarks, triangulate the other matches
+        let cur_id = self.new_keyframe_id(r, t);
         let mut landmark = vec![None; cur.len()];
         let thr = 2.0 / self.focal();
         for (k, &(_, b, id)) in with_lm.iter().enumerate() {
@@ -491,10 +568,17 @@ impl Tracker {
             landmark[b] = Some(id);
             // add the observation and re-triangulate from all of them when every
             // observation still reprojects within the threshold
+            let obs_b = bearing(&self.calib, &cur.keypoints[b]);
+            let poses = &self.keyframe_poses;
             let lm = &mut self.landmarks[id];
-            lm.obs.push((r, t, bearing(&self.calib, &cur.keypoints[b])));
-            if let Some(p) = triangulate_views(&lm.obs) {
-                let consistent = lm.obs.iter().all(|(ro, to, bo)| {
+            lm.obs.push((cur_id, obs_b));
+            let views: Vec<(Mat3, Vec3, Vec3)> = lm
+                .obs
+                .iter()
+                .map(|(k, bo)| (poses[*k].0, poses[*k].1, *bo))
+                .collect();
+            if let Some(p) = triangulate_views(&views) {
+                let consistent = views.iter().all(|(ro, to, bo)| {
                     let q = ro * p + to;
                     q.z > 0.0
                         && ((q.x / q.z - bo.x).powi(2) + (q.y / q.z - bo.y).powi(2)).sqrt() < thr
@@ -514,8 +598,8 @@ impl Tracker {
             landmark[b] = Some(self.add_landmark(
                 p,
                 [
-                    (kf.r, kf.t, &kf.features.keypoints[a]),
-                    (r, t, &cur.keypoints[b]),
+                    (kf.id, &kf.features.keypoints[a]),
+                    (cur_id, &cur.keypoints[b]),
                 ],
             ));
         }
@@ -528,12 +612,14 @@ impl Tracker {
             true,
         );
         self.keyframe = Some(Keyframe {
+            id: cur_id,
             r,
             t,
             features: cur,
             landmark,
         });
         self.frames_since_keyframe = 0;
+        self.local_ba();
         Ok(out)
     }
 

@@ -29,6 +29,9 @@ pub struct RunArgs {
     /// Keypoints per frame.
     #[arg(long, default_value_t = 1024)]
     top_k: usize,
+    /// Keyframes in the local bundle-adjustment window (0 disables it).
+    #[arg(long, default_value_t = 6)]
+    ba_window: usize,
     /// Process at most this many frames.
     #[arg(long)]
     max_frames: Option<usize>,
@@ -78,7 +81,10 @@ pub fn run(args: &RunArgs) -> Result<()> {
         Box::new(xfeat),
         Box::new(lg),
         seq.calib,
-        TrackerConfig::default(),
+        TrackerConfig {
+            local_ba_window: args.ba_window,
+            ..TrackerConfig::default()
+        },
     ));
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
