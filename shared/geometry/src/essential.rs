@@ -535,29 +535,6 @@ pub fn refine_essential(e: &Mat3, x1: &[Vec3], x2: &[Vec3], iterations: usize) -
     em / em.norm()
 }
 
-/// Least-squares essential matrix from eight or more correspondences: the smallest
-/// eigenvector of `A^T A`, projected onto the essential manifold (singular values 1, 1, 0).
-pub fn linear_essential(x1: &[Vec3], x2: &[Vec3]) -> Option<Mat3> {
-    if x1.len() < 8 || x1.len() != x2.len() {
-        return None;
-    }
-    let mut ata = SMatrix::<f64, 9, 9>::zeros();
-    for (p, q) in x1.iter().zip(x2) {
-        let (a, b) = (p / p.z, q / q.z);
-        let row = SMatrix::<f64, 1, 9>::from_fn(|_, k| b[k / 3] * a[k % 3]);
-        ata += row.transpose() * row;
-    }
-    let eig = ata.symmetric_eigen();
-    let k = crate::argmin(eig.eigenvalues.iter().copied());
-    let v = eig.eigenvectors.column(k);
-    let e = Mat3::from_fn(|r, c| v[3 * r + c]);
-    let svd = e.svd(true, true);
-    let (u, vt) = (svd.u?, svd.v_t?);
-    let e = u * Mat3::from_diagonal(&Vec3::new(1.0, 1.0, 0.0)) * vt;
-    let n = e.norm();
-    (n > 0.0 && n.is_finite()).then(|| e / n)
-}
-
 /// Linear (DLT) triangulation of one point seen by cameras `[I | 0]` and `[R | t]`;
 /// returns the point in camera 1.
 pub fn triangulate(r: &Mat3, t: &Vec3, x1: &Vec3, x2: &Vec3) -> Option<Vec3> {

@@ -516,7 +516,7 @@ impl Tracker {
                 features: cur,
                 landmark: vec![None; n],
             });
-            self.landmarks_tracking_reset();
+            self.frames_since_keyframe = 0;
             return Ok(out);
         };
         let (r, t) = (est.r, est.t);
@@ -621,10 +621,6 @@ impl Tracker {
         self.frames_since_keyframe = 0;
         self.local_ba();
         Ok(out)
-    }
-
-    fn landmarks_tracking_reset(&mut self) {
-        self.frames_since_keyframe = 0;
     }
 }
 

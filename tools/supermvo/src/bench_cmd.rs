@@ -142,7 +142,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     }
     result.insert("input_size".into(), serde_json::json!([w, h]));
     result.insert("threads".into(), (*threads).into());
-    println!("{}", serde_json::Value::Object(result));
+    outln!("{}", serde_json::Value::Object(result));
     Ok(())
 }
 
@@ -185,8 +185,8 @@ fn matching(
         ..Default::default()
     };
     let mut rows = String::from("seq,frame,matches,inliers\n");
-    println!("| seq | pairs | matches (median / mean) | inliers (median / mean) | inlier ratio (median / mean) |");
-    println!("|---|---|---|---|---|");
+    outln!("| seq | pairs | matches (median / mean) | inliers (median / mean) | inlier ratio (median / mean) |");
+    outln!("|---|---|---|---|---|");
     for dir in sequences {
         let seq = KittiSequence::open(dir)?;
         let k = seq.calib;
@@ -232,7 +232,7 @@ fn matching(
         }
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
         let (mm, im, rm) = (mean(&ms), mean(&is), mean(&rs));
-        println!(
+        outln!(
             "| {} | {} | {:.0} / {:.0} | {:.0} / {:.0} | {:.3} / {:.3} |",
             seq.name(),
             ms.len(),

@@ -85,7 +85,7 @@ fn parse_est(spec: &str) -> (String, PathBuf) {
 }
 
 fn print_stats(title: &str, unit: &str, s: &Stats) {
-    println!("  {title} ({unit})");
+    outln!("  {title} ({unit})");
     for (k, v) in [
         ("rmse", s.rmse),
         ("mean", s.mean),
@@ -95,20 +95,22 @@ fn print_stats(title: &str, unit: &str, s: &Stats) {
         ("max", s.max),
         ("sse", s.sse),
     ] {
-        println!("    {k:>7}  {v:.6}");
+        outln!("    {k:>7}  {v:.6}");
     }
 }
 
 fn print_report(label: &str, ev: &Evaluation) {
     let r = &ev.report;
-    println!(
+    outln!(
         "== {label}: {} matched poses, reference path {:.3} m",
-        r.matched_poses, r.reference_length_m
+        r.matched_poses,
+        r.reference_length_m
     );
     if r.alignment.kind != AlignmentKind::None {
-        println!(
+        outln!(
             "  alignment {:?}: scale {:.6}",
-            r.alignment.kind, r.alignment.scale
+            r.alignment.kind,
+            r.alignment.scale
         );
     }
     print_stats("APE translation", "m", &r.ape.trans);
@@ -130,15 +132,17 @@ fn print_report(label: &str, ev: &Evaluation) {
             );
             print_stats("RPE rotation angle", "deg", &rpe.rot_deg);
         }
-        (None, Some(msg)) => println!("  RPE: not computed: {msg}"),
+        (None, Some(msg)) => outln!("  RPE: not computed: {msg}"),
         (None, None) => {}
     }
     match &r.kitti {
-        Some(k) => println!(
+        Some(k) => outln!(
             "  KITTI metric: t_err {:.4} %, r_err {:.4} deg/100m over {} segments",
-            k.t_err_pct, k.r_err_deg_per_100m, k.segments
+            k.t_err_pct,
+            k.r_err_deg_per_100m,
+            k.segments
         ),
-        None => println!("  KITTI metric: not computed (ground truth shorter than 100 m)"),
+        None => outln!("  KITTI metric: not computed (ground truth shorter than 100 m)"),
     }
 }
 
@@ -202,7 +206,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         let files = supermvo_eval::plot::write_all(dir, &results)?;
         if !args.quiet {
             for f in files {
-                println!("wrote {}", f.display());
+                outln!("wrote {}", f.display());
             }
         }
     }

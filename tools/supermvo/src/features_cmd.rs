@@ -46,7 +46,7 @@ pub fn run(args: &FeaturesArgs) -> Result<()> {
         let f = xfeat
             .extract(&img)
             .with_context(|| format!("extracting features from {}", path.display()))?;
-        println!(
+        outln!(
             "{}: {}x{}, {} keypoints",
             path.display(),
             img.width,

@@ -82,7 +82,7 @@ pub fn run(args: &GraphArgs) -> Result<()> {
         ),
     };
     let seconds = start.elapsed().as_secs_f64();
-    println!(
+    outln!(
         "{}: {vertices} vertices, {edges} edges; error {:.6} -> {:.6} in {} iterations, {:.3} s{}",
         file.display(),
         summary.initial_error,

@@ -1,5 +1,18 @@
 //! `supermvo`: the SuPerMVO command-line tool.
 
+/// `println!` for the CLI: a closed stdout (`supermvo ... | head`) ends the program quietly,
+/// as Unix tools do, instead of panicking.
+macro_rules! outln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        if let Err(e) = writeln!(std::io::stdout().lock(), $($arg)*) {
+            if e.kind() == std::io::ErrorKind::BrokenPipe {
+                std::process::exit(0);
+            }
+        }
+    }};
+}
+
 mod bench_cmd;
 mod eval_cmd;
 mod features_cmd;

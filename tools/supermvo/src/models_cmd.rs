@@ -63,14 +63,14 @@ pub fn run(args: &ModelsArgs) -> Result<()> {
             } else {
                 "missing: run 'supermvo models fetch onnxruntime'"
             };
-            println!(
+            outln!(
                 "ONNX Runtime {}: {} ({state})",
                 runtime::ORT_VERSION,
                 lib.display()
             );
             let entries = models::manifest().map_err(anyhow::Error::msg)?;
             if entries.is_empty() {
-                println!(
+                outln!(
                     "no models in {}; run 'supermvo models fetch'",
                     models::models_dir().display()
                 );
@@ -92,7 +92,7 @@ pub fn run(args: &ModelsArgs) -> Result<()> {
                     .iter()
                     .map(|(n, s)| format!("{n}[{}]", s.join(",")))
                     .collect();
-                println!(
+                outln!(
                     "{:<12} {} {}=={} sha256 {}…{present}",
                     e.name,
                     path.display(),
@@ -100,7 +100,7 @@ pub fn run(args: &ModelsArgs) -> Result<()> {
                     e.source_version,
                     &e.sha256[..12.min(e.sha256.len())]
                 );
-                println!(
+                outln!(
                     "             in: {}  out: {}",
                     ins.join(" "),
                     outs.join(" ")

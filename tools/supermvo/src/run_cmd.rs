@@ -171,21 +171,21 @@ pub fn run(args: &RunArgs) -> Result<()> {
         };
         match evaluate(&gt, &traj, &opts) {
             Ok(ev) => {
-                println!(
+                outln!(
                     "{}: {} of {n} frames estimated, {lost} lost; APE RMSE after Sim(3) {:.3} m over {:.1} m of path",
                     seq.name(), est.len(), ev.report.ape.trans.rmse, ev.report.reference_length_m
                 );
                 report["eval"] = serde_json::to_value(&ev.report)?;
                 supermvo_eval::plot::write_all(&args.out, &[("supermvo".to_string(), ev)])?;
             }
-            Err(e) => println!("{}: evaluation not possible: {e}", seq.name()),
+            Err(e) => outln!("{}: evaluation not possible: {e}", seq.name()),
         }
     }
     std::fs::write(
         args.out.join("report.json"),
         serde_json::to_string_pretty(&report)?,
     )?;
-    println!(
+    outln!(
         "median tracking time {:.1} ms per frame; results in {}",
         tracker.median_ms(),
         args.out.display()

@@ -177,3 +177,27 @@ fn missing_file_and_bad_options() {
     args.extend(["--config".into(), cfg.to_str().unwrap().into()]);
     run_err(args, &["c.toml", "colour"]);
 }
+
+#[test]
+fn closed_stdout_is_not_a_panic() {
+    // `supermvo ... | head -1`: the reader goes away before the output is written
+    let d = tempfile::tempdir().unwrap();
+    let gt = write(d.path(), "gt.txt", &kitti_lines(200));
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_supermvo"))
+        .args([
+            "eval",
+            "--gt",
+            gt.to_str().unwrap(),
+            "--est",
+            gt.to_str().unwrap(),
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+}
