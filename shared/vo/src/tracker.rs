@@ -269,20 +269,21 @@ impl Tracker {
     /// reproject within 2 px and have the configured parallax.
     fn triangulate_pairs(
         &self,
-        kf: &Keyframe,
+        (kf_r, kf_t): (&Mat3, &Vec3),
+        kf_keypoints: &[[f32; 2]],
         cur: &Features,
         r: &Mat3,
         t: &Vec3,
         pairs: &[(usize, usize)],
     ) -> Vec<(usize, usize, Vec3)> {
         // relative pose T_cur_kf = T_cur_world * T_world_kf
-        let r_rel = r * kf.r.transpose();
-        let t_rel = t - r_rel * kf.t;
+        let r_rel = r * kf_r.transpose();
+        let t_rel = t - r_rel * kf_t;
         let thr = 2.0 / self.focal();
         let mut out = Vec::new();
         for &(a, b) in pairs {
             let (x1, x2) = (
-                bearing(&self.calib, &kf.features.keypoints[a]),
+                bearing(&self.calib, &kf_keypoints[a]),
                 bearing(&self.calib, &cur.keypoints[b]),
             );
             let Some(p_kf) = triangulate(&r_rel, &t_rel, &x1, &x2) else {
@@ -300,7 +301,7 @@ impl Tracker {
             let parallax = ray_kf.dot(&ray_cur).clamp(-1.0, 1.0).acos().to_degrees();
             if e1 < thr && e2 < thr && parallax > self.cfg.min_triangulation_parallax_deg {
                 // world point: p_world = R_kf^T (p_kf - t_kf)
-                out.push((a, b, kf.r.transpose() * (p_kf - kf.t)));
+                out.push((a, b, kf_r.transpose() * (p_kf - kf_t)));
             }
         }
         out
@@ -311,7 +312,7 @@ impl Tracker {
         input: &FrameInput,
         state: TrackingState,
         pose: Option<(Mat3, Vec3)>,
-        f: &Features,
+        keypoints: usize,
         (matches, inliers): (usize, usize),
         keyframe: bool,
     ) -> FrameOutput {
@@ -320,12 +321,60 @@ impl Tracker {
             stamp: input.stamp,
             state,
             pose: pose.map(|(r, t)| pose_array(&r, &t)),
-            keypoints: f.len(),
+            keypoints,
             matches,
             inliers,
             keyframe,
             landmarks: self.landmarks.len(),
         }
+    }
+
+    /// Makes `cur` the reference keyframe at `(r, t)`, without landmarks (initialisation
+    /// starts from it).
+    fn set_reference(&mut self, r: Mat3, t: Vec3, cur: Features) {
+        let id = self.new_keyframe_id(r, t);
+        let landmark = vec![None; cur.len()];
+        self.keyframe = Some(Keyframe {
+            id,
+            r,
+            t,
+            features: cur,
+            landmark,
+        });
+    }
+
+    /// Makes `cur` (registered as `cur_id` at `(r, t)`) the new keyframe: the matches
+    /// `candidates` to `kf` are triangulated into new landmarks beside those already in
+    /// `landmark`, then the local BA runs.
+    fn insert_keyframe(
+        &mut self,
+        kf: &Keyframe,
+        cur: Features,
+        cur_id: usize,
+        (r, t): (Mat3, Vec3),
+        mut landmark: Vec<Option<usize>>,
+        candidates: &[(usize, usize)],
+    ) {
+        let kf_pose = (&kf.r, &kf.t);
+        for (a, b, p) in
+            self.triangulate_pairs(kf_pose, &kf.features.keypoints, &cur, &r, &t, candidates)
+        {
+            let views = [
+                (kf.id, &kf.features.keypoints[a]),
+                (cur_id, &cur.keypoints[b]),
+            ];
+            landmark[b] = Some(self.add_landmark(p, views));
+        }
+        self.last_pose = (r, t);
+        self.keyframe = Some(Keyframe {
+            id: cur_id,
+            r,
+            t,
+            features: cur,
+            landmark,
+        });
+        self.frames_since_keyframe = 0;
+        self.local_ba();
     }
 
     fn initialise(
@@ -340,19 +389,11 @@ impl Tracker {
                 input,
                 TrackingState::Initializing,
                 Some((r, t)),
-                &cur,
+                cur.len(),
                 (0, 0),
                 true,
             );
-            let n = cur.len();
-            let id = self.new_keyframe_id(r, t);
-            self.keyframe = Some(Keyframe {
-                id,
-                r,
-                t,
-                features: cur,
-                landmark: vec![None; n],
-            });
+            self.set_reference(r, t, cur);
             return Ok(out);
         };
         let m = self.matcher.match_features(&kf.features, &cur)?;
@@ -371,7 +412,7 @@ impl Tracker {
                 input,
                 TrackingState::Initializing,
                 None,
-                &cur,
+                cur.len(),
                 (m.pairs.len(), 0),
                 false,
             );
@@ -393,7 +434,7 @@ impl Tracker {
                 input,
                 TrackingState::Initializing,
                 None,
-                &cur,
+                cur.len(),
                 (m.pairs.len(), 0),
                 false,
             );
@@ -410,20 +451,15 @@ impl Tracker {
             .filter(|(_, &b)| b)
             .map(|(p, _)| *p)
             .collect();
-        let probe = Keyframe {
-            id: usize::MAX,
-            r: Mat3::identity(),
-            t: Vec3::zeros(),
-            features: kf.features.clone(),
-            landmark: vec![],
-        };
-        let unit = self.triangulate_pairs(&probe, &cur, &r_rel, &t_rel, &inl);
+        let identity = (&Mat3::identity(), &Vec3::zeros());
+        let unit =
+            self.triangulate_pairs(identity, &kf.features.keypoints, &cur, &r_rel, &t_rel, &inl);
         if unit.len() < self.cfg.min_init_landmarks {
             let out = self.output(
                 input,
                 TrackingState::Initializing,
                 None,
-                &cur,
+                cur.len(),
                 (m.pairs.len(), unit.len()),
                 false,
             );
@@ -444,37 +480,18 @@ impl Tracker {
         let t_rel = t_rel * s;
         let r = r_rel * kf.r;
         let t = r_rel * kf.t + t_rel;
-        let tri = self.triangulate_pairs(&kf, &cur, &r, &t, &inl);
         let cur_id = self.new_keyframe_id(r, t);
-        let mut landmark = vec![None; cur.len()];
-        for (a, b, p) in tri {
-            landmark[b] = Some(self.add_landmark(
-                p,
-                [
-                    (kf.id, &kf.features.keypoints[a]),
-                    (cur_id, &cur.keypoints[b]),
-                ],
-            ));
-        }
-        let out = self.output(
+        let (keypoints, landmark) = (cur.len(), vec![None; cur.len()]);
+        self.insert_keyframe(&kf, cur, cur_id, (r, t), landmark, &inl);
+        let counts = (m.pairs.len(), est.inlier_count());
+        Ok(self.output(
             input,
             TrackingState::Tracking,
             Some((r, t)),
-            &cur,
-            (m.pairs.len(), est.inlier_count()),
+            keypoints,
+            counts,
             true,
-        );
-        self.last_pose = (r, t);
-        self.keyframe = Some(Keyframe {
-            id: cur_id,
-            r,
-            t,
-            features: cur,
-            landmark,
-        });
-        self.frames_since_keyframe = 0;
-        self.local_ba();
-        Ok(out)
+        ))
     }
 
     fn track(&mut self, input: &FrameInput, cur: Features) -> Result<FrameOutput, InferenceError> {
@@ -502,20 +519,12 @@ impl Tracker {
                 input,
                 TrackingState::Lost,
                 None,
-                &cur,
+                cur.len(),
                 (m.pairs.len(), 0),
                 false,
             );
-            let n = cur.len();
             let (r, t) = self.last_pose;
-            let id = self.new_keyframe_id(r, t);
-            self.keyframe = Some(Keyframe {
-                id,
-                r,
-                t,
-                features: cur,
-                landmark: vec![None; n],
-            });
+            self.set_reference(r, t, cur);
             self.frames_since_keyframe = 0;
             return Ok(out);
         };
@@ -550,7 +559,7 @@ impl Tracker {
                 input,
                 TrackingState::Tracking,
                 Some((r, t)),
-                &cur,
+                cur.len(),
                 (m.pairs.len(), tracked),
                 false,
             );
@@ -594,33 +603,17 @@ impl Tracker {
             .copied()
             .filter(|&(a, b)| kf.landmark[a].is_none() && landmark[b].is_none())
             .collect();
-        for (a, b, p) in self.triangulate_pairs(&kf, &cur, &r, &t, &fresh) {
-            landmark[b] = Some(self.add_landmark(
-                p,
-                [
-                    (kf.id, &kf.features.keypoints[a]),
-                    (cur_id, &cur.keypoints[b]),
-                ],
-            ));
-        }
-        let out = self.output(
+        let keypoints = cur.len();
+        self.insert_keyframe(&kf, cur, cur_id, (r, t), landmark, &fresh);
+        let counts = (m.pairs.len(), tracked);
+        Ok(self.output(
             input,
             TrackingState::Tracking,
             Some((r, t)),
-            &cur,
-            (m.pairs.len(), tracked),
+            keypoints,
+            counts,
             true,
-        );
-        self.keyframe = Some(Keyframe {
-            id: cur_id,
-            r,
-            t,
-            features: cur,
-            landmark,
-        });
-        self.frames_since_keyframe = 0;
-        self.local_ba();
-        Ok(out)
+        ))
     }
 }
 
