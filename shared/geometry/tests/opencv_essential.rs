@@ -5,25 +5,14 @@
 
 use serde_json::Value;
 use supermvo_geometry::essential::{find_essential, recover_pose, RansacConfig};
-use supermvo_geometry::{rotation_angle, Mat3, Vec3};
+use supermvo_geometry::{rotation_angle, Vec3};
 
-fn mat(v: &Value) -> Mat3 {
-    Mat3::from_fn(|r, c| v[r][c].as_f64().unwrap())
-}
-
-fn vec3(v: &Value) -> Vec3 {
-    Vec3::new(
-        v[0].as_f64().unwrap(),
-        v[1].as_f64().unwrap(),
-        v[2].as_f64().unwrap(),
-    )
-}
+mod common;
+use common::{mat, vec3};
 
 #[test]
 fn agrees_with_opencv_and_is_at_least_as_accurate() {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../tests/fixtures/opencv_essential.json");
-    let fx: Value = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    let fx = common::fixture("opencv_essential.json");
     let k = mat(&fx["k"]);
     let (fxp, fyp, cx, cy) = (k[(0, 0)], k[(1, 1)], k[(0, 2)], k[(1, 2)]);
     let norm = |p: &Value| {

@@ -3,27 +3,15 @@
 //! 200 points, 0.5 px Gaussian noise, 25 % planted outliers).
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
 
-use serde_json::Value;
 use supermvo_geometry::pnp::{solve_pnp_ransac, PnpConfig};
-use supermvo_geometry::{rotation_angle, Mat3, Vec3};
+use supermvo_geometry::{rotation_angle, Vec3};
 
-fn mat(v: &Value) -> Mat3 {
-    Mat3::from_fn(|r, c| v[r][c].as_f64().unwrap())
-}
-
-fn vec3(v: &Value) -> Vec3 {
-    Vec3::new(
-        v[0].as_f64().unwrap(),
-        v[1].as_f64().unwrap(),
-        v[2].as_f64().unwrap(),
-    )
-}
+mod common;
+use common::{mat, vec3};
 
 #[test]
 fn agrees_with_opencv() {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../tests/fixtures/opencv_pnp.json");
-    let fx: Value = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    let fx = common::fixture("opencv_pnp.json");
     let k = mat(&fx["k"]);
     let (f, cx, cy) = (k[(0, 0)], k[(0, 2)], k[(1, 2)]);
     let cfg = PnpConfig {
