@@ -119,6 +119,17 @@ fn xz_ranges(trajs: &[&Trajectory]) -> (std::ops::Range<f64>, std::ops::Range<f6
     ((xc - half)..(xc + half), (zc - half)..(zc + half))
 }
 
+/// Draws the series labels of a chart in the common style (white box, black border).
+fn draw_legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()
+}
+
 /// A metric x-z chart.
 type TopView<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
 
@@ -174,12 +185,7 @@ fn trajectory_xz(
             .label(label.as_str())
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()
-        .map_err(&e)?;
+    draw_legend(&mut chart).map_err(&e)?;
     root.present().map_err(&e)
 }
 
@@ -260,12 +266,7 @@ fn three_panels(
             }
         }
         if k == 0 {
-            chart
-                .configure_series_labels()
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK)
-                .draw()
-                .map_err(&e)?;
+            draw_legend(&mut chart).map_err(&e)?;
         }
     }
     root.present().map_err(&e)
@@ -322,12 +323,7 @@ fn ape_path(path: &Path, label: &str, ev: &Evaluation) -> Result<(), PlotError> 
             )
         }))
         .map_err(&e)?;
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()
-        .map_err(&e)?;
+    draw_legend(&mut chart).map_err(&e)?;
     draw_colorbar(&bar, lo, hi).map_err(&e)?;
     root.present().map_err(&e)
 }
