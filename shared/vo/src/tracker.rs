@@ -4,7 +4,13 @@
 //! Frames: `T_cam_world` maps world points into the camera; outputs carry `T_world_cam`.
 //! The world frame is the first keyframe's camera; the scale is fixed by the first
 //! two-view initialisation (unit baseline) and carried by the landmarks afterwards.
-//! There is no bundle adjustment yet, so drift accumulates.
+//! A local bundle adjustment refines the last keyframes and their landmarks.
+//!
+//! The tracker neither detects nor matches: each step takes the frame's features and their
+//! matches against the current reference keyframe ([`Tracker::reference`]). In process,
+//! [`VoPipeline`] runs extractor, matcher and tracker one after the other; in the daemon the
+//! features and the matches arrive from their own processes, and the results are identical
+//! because the tracker sees exactly the same numbers.
 
 use crate::stage::Stage;
 use supermvo_dataset::{Calibration, GrayImage};
@@ -13,7 +19,7 @@ use supermvo_geometry::essential::{
 };
 use supermvo_geometry::pnp::{solve_pnp_ransac, PnpConfig};
 use supermvo_geometry::{Mat3, Pose, Vec3};
-use supermvo_inference::{Extractor, Features, InferenceError, Matcher};
+use supermvo_inference::{Extractor, Features, InferenceError, Matcher, Matches};
 
 /// Tracker settings.
 #[derive(Debug, Clone, PartialEq)]
@@ -98,6 +104,10 @@ pub struct FrameOutput {
     pub keyframe: bool,
     /// Landmarks in the map.
     pub landmarks: usize,
+    /// Frame index of the reference keyframe the next frame is matched against.
+    pub reference: Option<usize>,
+    /// Scale of the map (median landmark depth at initialisation), once initialised.
+    pub scale: Option<f64>,
 }
 
 /// A map point with every keyframe observation `(keyframe id, bearing)` of it.
@@ -108,6 +118,8 @@ struct Landmark {
 
 struct Keyframe {
     id: usize,
+    /// Frame index of the keyframe.
+    frame: usize,
     r: Mat3,
     t: Vec3,
     features: Features,
@@ -116,8 +128,6 @@ struct Keyframe {
 
 /// The tracker (see module docs).
 pub struct Tracker {
-    extractor: Box<dyn Extractor + Send>,
-    matcher: Box<dyn Matcher + Send>,
     calib: Calibration,
     cfg: TrackerConfig,
     landmarks: Vec<Landmark>,
@@ -168,16 +178,9 @@ fn pose_array(r: &Mat3, t: &Vec3) -> [f64; 12] {
 }
 
 impl Tracker {
-    /// A tracker over the given front end and left-camera calibration.
-    pub fn new(
-        extractor: Box<dyn Extractor + Send>,
-        matcher: Box<dyn Matcher + Send>,
-        calib: Calibration,
-        cfg: TrackerConfig,
-    ) -> Self {
+    /// A tracker for the given left-camera calibration.
+    pub fn new(calib: Calibration, cfg: TrackerConfig) -> Self {
         Self {
-            extractor,
-            matcher,
             calib,
             cfg,
             landmarks: Vec::new(),
@@ -307,9 +310,28 @@ impl Tracker {
         out
     }
 
+    /// The reference keyframe the next frame must be matched against: its frame index and
+    /// features (`None` before the first frame and right after a loss).
+    pub fn reference(&self) -> Option<(usize, &Features)> {
+        self.keyframe.as_ref().map(|k| (k.frame, &k.features))
+    }
+
+    /// Restarts from `T_world_cam` with the map scale of an earlier run (a restarted tracking
+    /// process continues the trajectory the back end recorded). Clears map and reference.
+    pub fn restore(&mut self, t_world_cam: &Pose, scale: Option<f64>) {
+        let r = t_world_cam.r.transpose();
+        let t = -(r * t_world_cam.t);
+        self.last_pose = (r, t);
+        self.scale = scale;
+        self.keyframe = None;
+        self.landmarks.clear();
+        self.keyframe_poses.clear();
+        self.frames_since_keyframe = 0;
+    }
+
     fn output(
         &self,
-        input: &FrameInput,
+        input: &FrameMeta,
         state: TrackingState,
         pose: Option<(Mat3, Vec3)>,
         keypoints: usize,
@@ -326,16 +348,19 @@ impl Tracker {
             inliers,
             keyframe,
             landmarks: self.landmarks.len(),
+            reference: None,
+            scale: None,
         }
     }
 
     /// Makes `cur` the reference keyframe at `(r, t)`, without landmarks (initialisation
     /// starts from it).
-    fn set_reference(&mut self, r: Mat3, t: Vec3, cur: Features) {
+    fn set_reference(&mut self, frame: usize, r: Mat3, t: Vec3, cur: Features) {
         let id = self.new_keyframe_id(r, t);
         let landmark = vec![None; cur.len()];
         self.keyframe = Some(Keyframe {
             id,
+            frame,
             r,
             t,
             features: cur,
@@ -348,6 +373,7 @@ impl Tracker {
     /// `landmark`, then the local BA runs.
     fn insert_keyframe(
         &mut self,
+        frame: usize,
         kf: &Keyframe,
         cur: Features,
         cur_id: usize,
@@ -368,6 +394,7 @@ impl Tracker {
         self.last_pose = (r, t);
         self.keyframe = Some(Keyframe {
             id: cur_id,
+            frame,
             r,
             t,
             features: cur,
@@ -377,11 +404,7 @@ impl Tracker {
         self.local_ba();
     }
 
-    fn initialise(
-        &mut self,
-        input: &FrameInput,
-        cur: Features,
-    ) -> Result<FrameOutput, InferenceError> {
+    fn initialise(&mut self, input: &FrameMeta, cur: Features, m: Option<&Matches>) -> FrameOutput {
         let Some(kf) = self.keyframe.take() else {
             // first frame (or first after a loss): becomes the reference at the last pose
             let (r, t) = self.last_pose;
@@ -393,10 +416,13 @@ impl Tracker {
                 (0, 0),
                 true,
             );
-            self.set_reference(r, t, cur);
-            return Ok(out);
+            self.set_reference(input.index, r, t, cur);
+            return out;
         };
-        let m = self.matcher.match_features(&kf.features, &cur)?;
+        let Some(m) = m else {
+            // no matches to the reference: start again from this frame
+            return self.lost(input, cur, 0);
+        };
         let mut disp: Vec<f64> = m
             .pairs
             .iter()
@@ -417,7 +443,7 @@ impl Tracker {
                 false,
             );
             self.keyframe = Some(kf);
-            return Ok(out);
+            return out;
         }
         let x1: Vec<Vec3> = m
             .pairs
@@ -439,7 +465,7 @@ impl Tracker {
                 false,
             );
             self.keyframe = Some(kf);
-            return Ok(out);
+            return out;
         };
         let (r_rel, t_rel, _) = recover_pose(&est.e, &x1, &x2, &est.inliers, 1e3);
         // scale: unit baseline at the first initialisation; afterwards keep the map's scale
@@ -464,7 +490,7 @@ impl Tracker {
                 false,
             );
             self.keyframe = Some(kf);
-            return Ok(out);
+            return out;
         }
         let mut depths: Vec<f64> = unit.iter().map(|(_, _, p)| p.z).collect();
         depths.sort_by(f64::total_cmp);
@@ -482,23 +508,22 @@ impl Tracker {
         let t = r_rel * kf.t + t_rel;
         let cur_id = self.new_keyframe_id(r, t);
         let (keypoints, landmark) = (cur.len(), vec![None; cur.len()]);
-        self.insert_keyframe(&kf, cur, cur_id, (r, t), landmark, &inl);
+        self.insert_keyframe(input.index, &kf, cur, cur_id, (r, t), landmark, &inl);
         let counts = (m.pairs.len(), est.inlier_count());
-        Ok(self.output(
+        self.output(
             input,
             TrackingState::Tracking,
             Some((r, t)),
             keypoints,
             counts,
             true,
-        ))
+        )
     }
 
-    fn track(&mut self, input: &FrameInput, cur: Features) -> Result<FrameOutput, InferenceError> {
-        let Some(kf) = self.keyframe.take() else {
-            return self.initialise(input, cur);
+    fn track(&mut self, input: &FrameMeta, cur: Features, m: Option<&Matches>) -> FrameOutput {
+        let (Some(kf), Some(m)) = (self.keyframe.take(), m) else {
+            return self.lost(input, cur, 0);
         };
-        let m = self.matcher.match_features(&kf.features, &cur)?;
         let with_lm: Vec<(usize, usize, usize)> = m
             .pairs
             .iter()
@@ -514,19 +539,7 @@ impl Tracker {
             .collect();
         let est = solve_pnp_ransac(&pw, &bw, self.focal(), &self.cfg.pnp);
         let Some(est) = est.filter(|e| e.inlier_count() >= self.cfg.min_tracked) else {
-            // lost: re-initialise from this frame at the last known pose
-            let out = self.output(
-                input,
-                TrackingState::Lost,
-                None,
-                cur.len(),
-                (m.pairs.len(), 0),
-                false,
-            );
-            let (r, t) = self.last_pose;
-            self.set_reference(r, t, cur);
-            self.frames_since_keyframe = 0;
-            return Ok(out);
+            return self.lost(input, cur, m.pairs.len());
         };
         let (r, t) = (est.r, est.t);
         if tracing::enabled!(tracing::Level::DEBUG) {
@@ -564,7 +577,7 @@ impl Tracker {
                 false,
             );
             self.keyframe = Some(kf);
-            return Ok(out);
+            return out;
         }
         // new keyframe: keep the inlier landmarks, triangulate the other matches
         let cur_id = self.new_keyframe_id(r, t);
@@ -604,39 +617,119 @@ impl Tracker {
             .filter(|&(a, b)| kf.landmark[a].is_none() && landmark[b].is_none())
             .collect();
         let keypoints = cur.len();
-        self.insert_keyframe(&kf, cur, cur_id, (r, t), landmark, &fresh);
+        self.insert_keyframe(input.index, &kf, cur, cur_id, (r, t), landmark, &fresh);
         let counts = (m.pairs.len(), tracked);
-        Ok(self.output(
+        self.output(
             input,
             TrackingState::Tracking,
             Some((r, t)),
             keypoints,
             counts,
             true,
-        ))
+        )
     }
 }
 
-impl Stage for Tracker {
+impl Tracker {
+    /// Lost: re-initialise from this frame at the last known pose.
+    fn lost(&mut self, input: &FrameMeta, cur: Features, matches: usize) -> FrameOutput {
+        let out = self.output(
+            input,
+            TrackingState::Lost,
+            None,
+            cur.len(),
+            (matches, 0),
+            false,
+        );
+        let (r, t) = self.last_pose;
+        self.set_reference(input.index, r, t, cur);
+        self.frames_since_keyframe = 0;
+        out
+    }
+
+    /// Processes one frame: its features and their matches against [`Tracker::reference`]
+    /// (`a` indexes the reference, `b` this frame). `matches` is ignored when there is no
+    /// reference; when there is one and `matches` is `None` (the matcher could not provide
+    /// them) the frame counts as lost and the tracker starts again from it.
+    pub fn step(
+        &mut self,
+        meta: FrameMeta,
+        cur: Features,
+        matches: Option<&Matches>,
+    ) -> FrameOutput {
+        let initialised = self
+            .keyframe
+            .as_ref()
+            .is_some_and(|k| k.landmark.iter().any(|l| l.is_some()));
+        let mut out = if initialised {
+            self.track(&meta, cur, matches)
+        } else {
+            self.initialise(&meta, cur, matches)
+        };
+        out.reference = self.keyframe.as_ref().map(|k| k.frame);
+        out.scale = self.scale;
+        out
+    }
+}
+
+/// Index and time of a frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameMeta {
+    /// Frame index.
+    pub index: usize,
+    /// Timestamp, seconds.
+    pub stamp: f64,
+}
+
+/// Extractor, matcher and tracker in one process, one after the other: the reference
+/// implementation the multi-process daemon must reproduce bit for bit.
+pub struct VoPipeline {
+    extractor: Box<dyn Extractor + Send>,
+    matcher: Box<dyn Matcher + Send>,
+    tracker: Tracker,
+}
+
+impl std::fmt::Debug for VoPipeline {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "VoPipeline({:?})", self.tracker)
+    }
+}
+
+impl VoPipeline {
+    /// A pipeline over the given front end.
+    pub fn new(
+        extractor: Box<dyn Extractor + Send>,
+        matcher: Box<dyn Matcher + Send>,
+        tracker: Tracker,
+    ) -> Self {
+        Self {
+            extractor,
+            matcher,
+            tracker,
+        }
+    }
+}
+
+impl Stage for VoPipeline {
     type Input = FrameInput;
     type Output = FrameOutput;
     type Error = InferenceError;
 
     fn name(&self) -> &'static str {
-        "tracking"
+        "vo"
     }
 
     fn process(&mut self, input: FrameInput) -> Result<FrameOutput, InferenceError> {
         let cur = self.extractor.extract(&input.image)?;
-        let initialised = self
-            .keyframe
-            .as_ref()
-            .is_some_and(|k| k.landmark.iter().any(|l| l.is_some()));
-        if initialised {
-            self.track(&input, cur)
-        } else {
-            self.initialise(&input, cur)
-        }
+        let matches = match self.tracker.reference() {
+            Some((_, reference)) => Some(self.matcher.match_features(reference, &cur)?),
+            None => None,
+        };
+        let meta = FrameMeta {
+            index: input.index,
+            stamp: input.stamp,
+        };
+        Ok(self.tracker.step(meta, cur, matches.as_ref()))
     }
 }
 

@@ -10,7 +10,9 @@ use supermvo_inference::lighterglue::{LightGlue, LightGlueConfig};
 use supermvo_inference::models;
 use supermvo_inference::xfeat::{XFeat, XFeatConfig};
 use supermvo_vo::stage::Timed;
-use supermvo_vo::tracker::{output_pose, FrameInput, Tracker, TrackerConfig, TrackingState};
+use supermvo_vo::tracker::{
+    output_pose, FrameInput, Tracker, TrackerConfig, TrackingState, VoPipeline,
+};
 
 /// Arguments of `supermvo run`.
 #[derive(Debug, Args)]
@@ -77,15 +79,14 @@ pub fn run(args: &RunArgs) -> Result<()> {
         "lighterglue",
         LightGlueConfig::default(),
     )?;
-    let mut tracker = Timed::new(Tracker::new(
-        Box::new(xfeat),
-        Box::new(lg),
+    let tracker = Tracker::new(
         seq.calib,
         TrackerConfig {
             local_ba_window: args.ba_window,
             ..TrackerConfig::default()
         },
-    ));
+    );
+    let mut tracker = Timed::new(VoPipeline::new(Box::new(xfeat), Box::new(lg), tracker));
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let bar = if args.quiet {
