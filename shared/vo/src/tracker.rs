@@ -368,15 +368,14 @@ impl Tracker {
         });
     }
 
-    /// Makes `cur` (registered as `cur_id` at `(r, t)`) the new keyframe: the matches
-    /// `candidates` to `kf` are triangulated into new landmarks beside those already in
-    /// `landmark`, then the local BA runs.
+    /// Makes `cur` (frame index `frame`, registered as keyframe `cur_id` at `(r, t)`) the new
+    /// keyframe: the matches `candidates` to `kf` are triangulated into new landmarks beside
+    /// those already in `landmark`, then the local BA runs.
     fn insert_keyframe(
         &mut self,
-        frame: usize,
         kf: &Keyframe,
         cur: Features,
-        cur_id: usize,
+        (frame, cur_id): (usize, usize),
         (r, t): (Mat3, Vec3),
         mut landmark: Vec<Option<usize>>,
         candidates: &[(usize, usize)],
@@ -508,7 +507,7 @@ impl Tracker {
         let t = r_rel * kf.t + t_rel;
         let cur_id = self.new_keyframe_id(r, t);
         let (keypoints, landmark) = (cur.len(), vec![None; cur.len()]);
-        self.insert_keyframe(input.index, &kf, cur, cur_id, (r, t), landmark, &inl);
+        self.insert_keyframe(&kf, cur, (input.index, cur_id), (r, t), landmark, &inl);
         let counts = (m.pairs.len(), est.inlier_count());
         self.output(
             input,
@@ -617,7 +616,7 @@ impl Tracker {
             .filter(|&(a, b)| kf.landmark[a].is_none() && landmark[b].is_none())
             .collect();
         let keypoints = cur.len();
-        self.insert_keyframe(input.index, &kf, cur, cur_id, (r, t), landmark, &fresh);
+        self.insert_keyframe(&kf, cur, (input.index, cur_id), (r, t), landmark, &fresh);
         let counts = (m.pairs.len(), tracked);
         self.output(
             input,
