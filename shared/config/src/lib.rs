@@ -46,6 +46,126 @@ pub enum ConfigError {
 pub struct Config {
     /// Trajectory evaluation defaults.
     pub eval: EvalConfig,
+    /// The VO pipeline and its daemon.
+    pub pipeline: PipelineConfig,
+}
+
+/// How ingest feeds frames.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum IngestMode {
+    /// As fast as the pipeline accepts, never dropping a frame (back-pressure).
+    Lossless,
+    /// At the dataset's frame rate; frames the pipeline cannot take are dropped and reported.
+    Realtime,
+}
+
+/// `[pipeline]`: the VO pipeline, in process or as the multi-process daemon.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PipelineConfig {
+    /// Name of the daemon's pipeline: its shared-memory services are named after it, and only
+    /// one pipeline of a name runs at a time. Letters, digits, '-' and '_'.
+    pub name: String,
+    /// "lossless" or "realtime".
+    pub mode: IngestMode,
+    /// Real-time replay speed factor: 1.0 replays at the dataset's own rate (10 Hz for KITTI,
+    /// from times.txt), 2.0 twice as fast. (0, 100].
+    pub speed: f64,
+    /// Keypoints per frame, [64, 8192].
+    pub top_k: usize,
+    /// ONNX Runtime intra-op threads per network, [1, 64].
+    pub threads: usize,
+    /// Feature-extraction worker processes taking alternate frames, [1, 8].
+    pub features_workers: usize,
+    /// Keyframes in the local bundle-adjustment window (0 disables it), [0, 30].
+    pub ba_window: usize,
+    /// Restarts allowed per stage before the supervisor gives up, [0, 100].
+    pub max_restarts: u32,
+    /// First restart delay in milliseconds, doubled on each further restart of a stage, [0, 10000].
+    pub restart_backoff_ms: u64,
+    /// A stage that reports nothing for this long is considered hung and restarted, in
+    /// milliseconds, [1000, 600000].
+    pub deadline_ms: u64,
+    /// How long a stage waits for a missing frame before reporting it lost, milliseconds,
+    /// [500, 600000].
+    pub gap_timeout_ms: u64,
+    /// Process at most this many frames (0: all).
+    pub max_frames: usize,
+    /// Replay the sequence this many times (soak tests), [1, 100000].
+    pub loops: usize,
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        Self {
+            name: "supermvo".into(),
+            mode: IngestMode::Lossless,
+            speed: 1.0,
+            top_k: 1024,
+            threads: 2,
+            features_workers: 1,
+            ba_window: 6,
+            max_restarts: 5,
+            restart_backoff_ms: 100,
+            deadline_ms: 20_000,
+            gap_timeout_ms: 10_000,
+            max_frames: 0,
+            loops: 1,
+        }
+    }
+}
+
+impl PipelineConfig {
+    /// Checks ranges.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        fn range<T: PartialOrd + ToString>(
+            key: &str,
+            v: T,
+            lo: T,
+            hi: T,
+        ) -> Result<(), ConfigError> {
+            if v >= lo && v <= hi {
+                Ok(())
+            } else {
+                Err(ConfigError::OutOfRange {
+                    key: format!("pipeline.{key}"),
+                    value: v.to_string(),
+                    allowed: format!("must be in [{}, {}]", lo.to_string(), hi.to_string()),
+                })
+            }
+        }
+        if self.name.is_empty()
+            || self.name.len() > 64
+            || !self
+                .name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+        {
+            return Err(ConfigError::OutOfRange {
+                key: "pipeline.name".into(),
+                value: format!("{:?}", self.name),
+                allowed: "must be 1 to 64 letters, digits, '-' or '_'".into(),
+            });
+        }
+        if !(self.speed > 0.0 && self.speed <= 100.0) {
+            return Err(ConfigError::OutOfRange {
+                key: "pipeline.speed".into(),
+                value: self.speed.to_string(),
+                allowed: "must be in (0, 100]".into(),
+            });
+        }
+        range("top_k", self.top_k, 64, 8192)?;
+        range("threads", self.threads, 1, 64)?;
+        range("features_workers", self.features_workers, 1, 8)?;
+        range("ba_window", self.ba_window, 0, 30)?;
+        range("max_restarts", self.max_restarts, 0, 100)?;
+        range("restart_backoff_ms", self.restart_backoff_ms, 0, 10_000)?;
+        range("deadline_ms", self.deadline_ms, 1000, 600_000)?;
+        range("gap_timeout_ms", self.gap_timeout_ms, 500, 600_000)?;
+        range("loops", self.loops, 1, 100_000)?;
+        Ok(())
+    }
 }
 
 /// `[eval]`: defaults of `supermvo eval`.
@@ -141,7 +261,8 @@ impl Config {
 
     /// Validates every section.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        self.eval.validate()
+        self.eval.validate()?;
+        self.pipeline.validate()
     }
 }
 
@@ -170,6 +291,17 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("whole number"), "{err}");
+        let err = Config::from_toml("[pipeline]\nfeatures_workers = 0\n", Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("pipeline.features_workers") && err.contains("[1, 8]"),
+            "{err}"
+        );
+        let err = Config::from_toml("[pipeline]\nname = \"a/b\"\n", Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("pipeline.name"), "{err}");
     }
 
     #[test]

@@ -32,7 +32,8 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Run monocular VO on a KITTI-layout sequence, in process.
+    /// Run monocular VO on a KITTI-layout sequence: as supervised processes over shared
+    /// memory (default) or in one process.
     Run(run_cmd::RunArgs),
     /// Evaluate estimated trajectories against ground truth (APE, RPE, KITTI metric, plots).
     Eval(eval_cmd::EvalArgs),

@@ -1,18 +1,28 @@
-//! `supermvo run`: monocular VO on a KITTI-layout sequence, in process.
+//! `supermvo run`: monocular VO on a KITTI-layout sequence, as the multi-process daemon
+//! (stages over iceoryx2, under the supervisor) or in one process. Both give the same
+//! trajectory; the report, plots and evaluation are the same.
 
 use anyhow::{bail, Context, Result};
-use clap::Args;
-use std::path::PathBuf;
+use clap::{Args, ValueEnum};
+use std::path::{Path, PathBuf};
+use supermvo_config::{Config, IngestMode};
 use supermvo_dataset::{write_trajectory, GrayImage, KittiSequence, Trajectory, TrajectoryFormat};
 use supermvo_eval::{evaluate, EvalOptions};
 use supermvo_geometry::AlignmentKind;
-use supermvo_inference::lighterglue::{LightGlue, LightGlueConfig};
-use supermvo_inference::models;
-use supermvo_inference::xfeat::{XFeat, XFeatConfig};
+use supermvo_services::backend::read_records;
+use supermvo_services::supervisor::{default_bin_dir, SupervisorOptions};
+use supermvo_services::{features, matching, tracking};
 use supermvo_vo::stage::Timed;
-use supermvo_vo::tracker::{
-    output_pose, FrameInput, Tracker, TrackerConfig, TrackingState, VoPipeline,
-};
+use supermvo_vo::tracker::{output_pose, FrameInput, Tracker, TrackingState, VoPipeline};
+
+/// How the pipeline runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Mode {
+    /// One process per stage over shared memory, supervised (the daemon).
+    Multiprocess,
+    /// Every stage in this process, one frame after the other.
+    Inprocess,
+}
 
 /// Arguments of `supermvo run`.
 #[derive(Debug, Args)]
@@ -25,38 +35,79 @@ pub struct RunArgs {
     /// Output directory.
     #[arg(long, default_value = "out/run")]
     out: PathBuf,
+    /// Multi-process daemon or a single process.
+    #[arg(long, value_enum, default_value_t = Mode::Multiprocess)]
+    mode: Mode,
+    /// Configuration file (see config/default.toml); the options below override it.
+    #[arg(long)]
+    config: Option<PathBuf>,
     /// Front end (only xfeat-lighterglue is built so far).
     #[arg(long, default_value = "xfeat-lighterglue")]
     frontend: String,
-    /// Keypoints per frame.
-    #[arg(long, default_value_t = 1024)]
-    top_k: usize,
-    /// Keyframes in the local bundle-adjustment window (0 disables it).
-    #[arg(long, default_value_t = 6)]
-    ba_window: usize,
-    /// Process at most this many frames.
+    /// Keypoints per frame [config: pipeline.top_k].
+    #[arg(long)]
+    top_k: Option<usize>,
+    /// Keyframes in the local bundle-adjustment window, 0 disables it [pipeline.ba_window].
+    #[arg(long)]
+    ba_window: Option<usize>,
+    /// Process at most this many frames [pipeline.max_frames].
     #[arg(long)]
     max_frames: Option<usize>,
-    /// No progress bar.
+    /// Replay at the dataset's frame rate, dropping (and reporting) what the pipeline cannot
+    /// take, instead of lossless back-pressure [pipeline.mode = "realtime"].
+    #[arg(long)]
+    realtime: bool,
+    /// Feature-extraction worker processes [pipeline.features_workers].
+    #[arg(long)]
+    workers: Option<usize>,
+    /// Pipeline name of the daemon [pipeline.name].
+    #[arg(long)]
+    name: Option<String>,
+    /// Replay the sequence this many times [pipeline.loops].
+    #[arg(long)]
+    loops: Option<usize>,
+    /// No progress display.
     #[arg(long, short)]
     quiet: bool,
 }
 
-/// Runs `supermvo run`.
-pub fn run(args: &RunArgs) -> Result<()> {
-    if args.frontend != "xfeat-lighterglue" {
-        bail!(
-            "front end '{}' is not available yet; use xfeat-lighterglue",
-            args.frontend
-        );
+impl RunArgs {
+    /// The effective configuration: file (or defaults), then command-line overrides.
+    fn config(&self) -> Result<Config> {
+        let mut cfg = match &self.config {
+            Some(p) => Config::load(p)?,
+            None => Config::default(),
+        };
+        let p = &mut cfg.pipeline;
+        if let Some(v) = self.top_k {
+            p.top_k = v;
+        }
+        if let Some(v) = self.ba_window {
+            p.ba_window = v;
+        }
+        if let Some(v) = self.max_frames {
+            p.max_frames = v;
+        }
+        if let Some(v) = self.workers {
+            p.features_workers = v;
+        }
+        if let Some(v) = &self.name {
+            p.name = v.clone();
+        }
+        if let Some(v) = self.loops {
+            p.loops = v;
+        }
+        if self.realtime {
+            p.mode = IngestMode::Realtime;
+        }
+        cfg.validate()?;
+        Ok(cfg)
     }
-    let seq = KittiSequence::open(&args.seq_dir)?;
-    let n = args
-        .max_frames
-        .unwrap_or(seq.images.len())
-        .min(seq.images.len());
+}
+
+/// Checks that the calibration belongs to the images (principal point inside them).
+fn check_calibration(seq: &KittiSequence) -> Result<GrayImage> {
     let first = GrayImage::load(&seq.images[0])?;
-    // the principal point must lie inside the image: catches calibration/image mismatches
     if seq.calib.cx <= 0.0
         || seq.calib.cx >= first.width as f64
         || seq.calib.cy <= 0.0
@@ -67,29 +118,66 @@ pub fn run(args: &RunArgs) -> Result<()> {
             seq.dir.join("calib.txt").display(), seq.calib.cx, seq.calib.cy, first.width, first.height
         );
     }
-    let xfeat = XFeat::new(
-        &models::model_path("xfeat"),
-        XFeatConfig {
-            top_k: args.top_k,
-            ..Default::default()
-        },
-    )?;
-    let lg = LightGlue::new(
-        &models::model_path("lighterglue"),
-        "lighterglue",
-        LightGlueConfig::default(),
-    )?;
-    let tracker = Tracker::new(
-        seq.calib,
-        TrackerConfig {
-            local_ba_window: args.ba_window,
-            ..TrackerConfig::default()
-        },
-    );
-    let mut tracker = Timed::new(VoPipeline::new(Box::new(xfeat), Box::new(lg), tracker));
+    Ok(first)
+}
+
+/// Runs `supermvo run`.
+pub fn run(args: &RunArgs) -> Result<()> {
+    if args.frontend != "xfeat-lighterglue" {
+        bail!(
+            "front end '{}' is not available yet; use xfeat-lighterglue",
+            args.frontend
+        );
+    }
+    let cfg = args.config()?;
+    let seq = KittiSequence::open(&args.seq_dir)?;
+    check_calibration(&seq)?;
+    let n = match cfg.pipeline.max_frames {
+        0 => seq.images.len(),
+        m => m.min(seq.images.len()),
+    };
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
-    let bar = if args.quiet {
+    let (traj, mut report) = match args.mode {
+        Mode::Inprocess => run_inprocess(args, &cfg, &seq, n)?,
+        Mode::Multiprocess => run_multiprocess(args, &cfg, &seq)?,
+    };
+    let est = traj.poses.len();
+    let lost = report["lost"].as_u64().unwrap_or(0);
+    let gt_path = args.gt.clone().or_else(|| seq.default_ground_truth());
+    if let (Some(gt_path), 1) = (gt_path, cfg.pipeline.loops) {
+        let mut gt = seq.read_ground_truth(&gt_path)?;
+        gt.poses.truncate(n);
+        if let Some(s) = gt.stamps.as_mut() {
+            s.truncate(n);
+        }
+        let opts = EvalOptions {
+            align: AlignmentKind::Sim3,
+            t_max_diff: 0.001,
+            ..Default::default()
+        };
+        match evaluate(&gt, &traj, &opts) {
+            Ok(ev) => {
+                outln!(
+                    "{}: {est} of {n} frames estimated, {lost} lost; APE RMSE after Sim(3) {:.3} m over {:.1} m of path",
+                    seq.name(), ev.report.ape.trans.rmse, ev.report.reference_length_m
+                );
+                report["eval"] = serde_json::to_value(&ev.report)?;
+                supermvo_eval::plot::write_all(&args.out, &[("supermvo".to_string(), ev)])?;
+            }
+            Err(e) => outln!("{}: evaluation not possible: {e}", seq.name()),
+        }
+    }
+    std::fs::write(
+        args.out.join("report.json"),
+        serde_json::to_string_pretty(&report)?,
+    )?;
+    outln!("results in {}", args.out.display());
+    Ok(())
+}
+
+fn progress_bar(quiet: bool, n: usize) -> indicatif::ProgressBar {
+    let bar = if quiet {
         indicatif::ProgressBar::hidden()
     } else {
         indicatif::ProgressBar::new(n as u64)
@@ -98,6 +186,24 @@ pub fn run(args: &RunArgs) -> Result<()> {
         indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames  {per_sec}  {msg}")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
+    bar
+}
+
+fn run_inprocess(
+    args: &RunArgs,
+    cfg: &Config,
+    seq: &KittiSequence,
+    n: usize,
+) -> Result<(Trajectory, serde_json::Value)> {
+    let p = &cfg.pipeline;
+    let tracker = Tracker::new(seq.calib, tracking::tracker_config(p));
+    let mut vo = Timed::new(VoPipeline::new(
+        Box::new(features::extractor(p.top_k, p.threads)?),
+        Box::new(matching::matcher(p.threads)?),
+        tracker,
+    ));
+    let first = GrayImage::load(&seq.images[0])?;
+    let bar = progress_bar(args.quiet, n);
     let mut outputs = Vec::with_capacity(n);
     for i in 0..n {
         let image = match GrayImage::load(&seq.images[i]) {
@@ -117,7 +223,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
                 continue;
             }
         };
-        let out = tracker.call(FrameInput {
+        let out = vo.call(FrameInput {
             index: i,
             stamp: seq.times[i],
             image,
@@ -127,7 +233,6 @@ pub fn run(args: &RunArgs) -> Result<()> {
         outputs.push(out);
     }
     bar.finish_and_clear();
-    // trajectory of the frames with a pose
     let est: Vec<_> = outputs
         .iter()
         .filter_map(|o| output_pose(o).map(|p| (o.stamp, p)))
@@ -137,59 +242,75 @@ pub fn run(args: &RunArgs) -> Result<()> {
         poses: est.iter().map(|e| e.1).collect(),
         quaternions: None,
     };
-    write_trajectory(
-        &args.out.join("trajectory.tum.txt"),
-        TrajectoryFormat::Tum,
-        &traj,
-    )?;
-    if est.len() == n {
-        write_trajectory(
-            &args.out.join("trajectory.kitti.txt"),
-            TrajectoryFormat::Kitti,
-            &traj,
-        )?;
-    }
+    write_outputs(&args.out, &traj, est.len() == n)?;
     let lost = outputs
         .iter()
         .filter(|o| o.state == TrackingState::Lost)
         .count();
-    let mut report = serde_json::json!({
+    outln!(
+        "median time per frame {:.1} ms (extraction, matching and tracking in one process)",
+        vo.median_ms()
+    );
+    let report = serde_json::json!({
+        "mode": "inprocess",
         "sequence": seq.dir, "frames": n, "estimated": est.len(), "lost": lost,
-        "timing_ms": {"tracking_median": tracker.median_ms(), "per_frame": tracker.durations_ms()},
+        "timing_ms": {"frame_median": vo.median_ms(), "per_frame": vo.durations_ms()},
         "frames_detail": outputs,
     });
-    let gt_path = args.gt.clone().or_else(|| seq.default_ground_truth());
-    if let Some(gt_path) = gt_path {
-        let mut gt = seq.read_ground_truth(&gt_path)?;
-        gt.poses.truncate(n);
-        if let Some(s) = gt.stamps.as_mut() {
-            s.truncate(n);
-        }
-        let opts = EvalOptions {
-            align: AlignmentKind::Sim3,
-            t_max_diff: 0.001,
-            ..Default::default()
-        };
-        match evaluate(&gt, &traj, &opts) {
-            Ok(ev) => {
-                outln!(
-                    "{}: {} of {n} frames estimated, {lost} lost; APE RMSE after Sim(3) {:.3} m over {:.1} m of path",
-                    seq.name(), est.len(), ev.report.ape.trans.rmse, ev.report.reference_length_m
-                );
-                report["eval"] = serde_json::to_value(&ev.report)?;
-                supermvo_eval::plot::write_all(&args.out, &[("supermvo".to_string(), ev)])?;
-            }
-            Err(e) => outln!("{}: evaluation not possible: {e}", seq.name()),
-        }
+    Ok((traj, report))
+}
+
+fn write_outputs(out: &Path, traj: &Trajectory, complete: bool) -> Result<()> {
+    write_trajectory(&out.join("trajectory.tum.txt"), TrajectoryFormat::Tum, traj)?;
+    if complete {
+        write_trajectory(
+            &out.join("trajectory.kitti.txt"),
+            TrajectoryFormat::Kitti,
+            traj,
+        )?;
     }
-    std::fs::write(
-        args.out.join("report.json"),
-        serde_json::to_string_pretty(&report)?,
-    )?;
-    outln!(
-        "median tracking time {:.1} ms per frame; results in {}",
-        tracker.median_ms(),
-        args.out.display()
-    );
     Ok(())
+}
+
+fn run_multiprocess(
+    args: &RunArgs,
+    cfg: &Config,
+    seq: &KittiSequence,
+) -> Result<(Trajectory, serde_json::Value)> {
+    let metrics = supermvo_services::supervisor::run(&SupervisorOptions {
+        config: cfg.clone(),
+        seq: seq.dir.clone(),
+        out: args.out.clone(),
+        bin_dir: default_bin_dir(),
+        quiet: args.quiet,
+    })?;
+    let records = read_records(&args.out.join("frames.csv"))?;
+    let est: Vec<_> = records
+        .iter()
+        .filter_map(|r| r.pose.as_ref().map(|p| (r.stamp, tracking::pose_of(p))))
+        .collect();
+    let traj = Trajectory {
+        stamps: Some(est.iter().map(|e| e.0).collect()),
+        poses: est.iter().map(|e| e.1).collect(),
+        quaternions: None,
+    };
+    let lost = records.iter().filter(|r| r.state == 2).count();
+    let e2e = &metrics.end_to_end_ms;
+    outln!(
+        "{} frames in {:.1} s ({:.1} fps); capture to pose p50 {:.0} ms, p99 {:.0} ms; {} restarts",
+        metrics.frames.values().sum::<usize>(),
+        metrics.duration_s,
+        metrics.fps,
+        e2e.p50,
+        e2e.p99,
+        metrics.restarts.len()
+    );
+    let report = serde_json::json!({
+        "mode": "multiprocess",
+        "sequence": seq.dir, "frames": records.iter().filter(|r| r.status != "end").count(),
+        "estimated": est.len(), "lost": lost,
+        "metrics": metrics,
+        "frames_detail": records,
+    });
+    Ok((traj, report))
 }

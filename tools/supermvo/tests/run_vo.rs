@@ -39,6 +39,8 @@ fn runs_deterministically_with_report_and_evaluation() {
         let r = common::supermvo(&[
             "run",
             seq.to_str().unwrap(),
+            "--mode",
+            "inprocess",
             "--max-frames",
             "25",
             "-q",

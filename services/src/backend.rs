@@ -1,0 +1,335 @@
+//! Back end: records every frame's outcome as it arrives (one line per frame in
+//! `frames.csv`, flushed at once, so a crash loses nothing), publishes what it has recorded
+//! for a restarted tracker, and writes the trajectory at the end of the stream or on SIGTERM.
+//!
+//! A restarted back end reads `frames.csv` back and continues after its last line.
+//! Loop closure and the pose graph are to come here.
+
+use crate::common::{StageArgs, StageContext};
+use crate::inbox::Inbox;
+use crate::tracking::pose_of;
+use anyhow::{Context, Result};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+use supermvo_dataset::{write_trajectory, Trajectory, TrajectoryFormat};
+use supermvo_messages::{
+    now_ns, BackendState, FrameHeader, MessageError, PoseMsg, StageKind, Status, Topic, HISTORY,
+};
+
+/// One recorded frame.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Record {
+    /// Sequence number.
+    pub seq: u64,
+    /// Frame index.
+    pub frame: u64,
+    /// Timestamp, s.
+    pub stamp: f64,
+    /// What became of the frame.
+    pub status: String,
+    /// Tracker state code (see [`PoseMsg::state`]).
+    pub state: u32,
+    /// `T_world_cam` when estimated.
+    pub pose: Option<[f64; 12]>,
+    /// Map scale.
+    pub scale: f64,
+    /// Whether it became a keyframe.
+    pub keyframe: bool,
+    /// Capture → tracking result, ms.
+    pub latency_ms: f64,
+}
+
+/// Name of a status in `frames.csv`.
+pub fn status_name(s: Status) -> &'static str {
+    match s {
+        Status::Ok => "ok",
+        Status::Dropped => "dropped",
+        Status::Unreadable => "unreadable",
+        Status::Lost => "lost",
+        Status::EndOfStream => "end",
+        Status::NoReference => "no_reference",
+    }
+}
+
+const CSV_HEADER: &str =
+    "seq,frame,stamp,status,state,keyframe,scale,latency_ms,r00,r01,r02,tx,r10,r11,r12,ty,r20,r21,r22,tz";
+
+impl Record {
+    fn csv(&self) -> String {
+        let mut s = format!(
+            "{},{},{},{},{},{},{},{}",
+            self.seq,
+            self.frame,
+            self.stamp,
+            self.status,
+            self.state,
+            self.keyframe as u8,
+            self.scale,
+            self.latency_ms
+        );
+        for i in 0..12 {
+            s.push(',');
+            if let Some(p) = &self.pose {
+                s.push_str(&p[i].to_string());
+            }
+        }
+        s
+    }
+
+    fn parse(line: &str) -> Option<Self> {
+        let f: Vec<&str> = line.split(',').collect();
+        if f.len() != 20 {
+            return None;
+        }
+        let pose = if f[8].is_empty() {
+            None
+        } else {
+            let mut p = [0.0; 12];
+            for (i, v) in p.iter_mut().enumerate() {
+                *v = f[8 + i].parse().ok()?;
+            }
+            Some(p)
+        };
+        Some(Self {
+            seq: f[0].parse().ok()?,
+            frame: f[1].parse().ok()?,
+            stamp: f[2].parse().ok()?,
+            status: f[3].to_string(),
+            state: f[4].parse().ok()?,
+            keyframe: f[5] == "1",
+            scale: f[6].parse().ok()?,
+            latency_ms: f[7].parse().ok()?,
+            pose,
+        })
+    }
+}
+
+/// Reads `frames.csv` (the back end's record), skipping a torn last line.
+pub fn read_records(path: &Path) -> Result<Vec<Record>> {
+    let text = match std::fs::read_to_string(path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(e).with_context(|| format!("reading {}", path.display())),
+    };
+    Ok(text.lines().skip(1).filter_map(Record::parse).collect())
+}
+
+/// Writes the trajectory of the records with a pose: TUM always, KITTI when every frame of
+/// the sequence has a pose.
+pub fn write_outputs(out: &Path, records: &[Record]) -> Result<()> {
+    let est: Vec<&Record> = records.iter().filter(|r| r.pose.is_some()).collect();
+    let traj = Trajectory {
+        stamps: Some(est.iter().map(|r| r.stamp).collect()),
+        poses: est
+            .iter()
+            .filter_map(|r| r.pose.as_ref().map(pose_of))
+            .collect(),
+        quaternions: None,
+    };
+    write_trajectory(
+        &out.join("trajectory.tum.txt"),
+        TrajectoryFormat::Tum,
+        &traj,
+    )?;
+    let frames = records.iter().filter(|r| r.status != "end").count();
+    if !est.is_empty() && est.len() == frames {
+        write_trajectory(
+            &out.join("trajectory.kitti.txt"),
+            TrajectoryFormat::Kitti,
+            &traj,
+        )?;
+    }
+    Ok(())
+}
+
+struct Recorder {
+    path: PathBuf,
+    file: std::fs::File,
+    records: Vec<Record>,
+    last_pose: Option<([f64; 12], f64)>,
+}
+
+impl Recorder {
+    fn open(out: &Path) -> Result<Self> {
+        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+        let path = out.join("frames.csv");
+        let records = read_records(&path)?;
+        let mut file = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .with_context(|| format!("opening {}", path.display()))?;
+        if records.is_empty() {
+            // a fresh file (or one torn before its first record): start it over
+            file.set_len(0)?;
+            writeln!(file, "{CSV_HEADER}")?;
+        }
+        let last_pose = records
+            .iter()
+            .rev()
+            .find_map(|r| r.pose.map(|p| (p, r.scale)));
+        Ok(Self {
+            path,
+            file,
+            records,
+            last_pose,
+        })
+    }
+
+    fn add(&mut self, r: Record) -> Result<()> {
+        writeln!(self.file, "{}", r.csv())
+            .and_then(|_| self.file.flush())
+            .with_context(|| format!("writing {}", self.path.display()))?;
+        if let Some(p) = r.pose {
+            self.last_pose = Some((p, r.scale));
+        }
+        self.records.push(r);
+        Ok(())
+    }
+
+    fn state(&self, finished: bool) -> BackendState {
+        let last = self.records.last();
+        BackendState {
+            seq: last.map_or(0, |r| r.seq),
+            frame: last.map_or(0, |r| r.frame),
+            has_pose: self.last_pose.is_some() as u32,
+            t_world_cam: self.last_pose.map(|p| p.0).unwrap_or_default(),
+            scale: self.last_pose.map_or(0.0, |p| p.1),
+            recorded: self.records.len() as u64,
+            finished: finished as u32,
+        }
+    }
+}
+
+fn record(h: &FrameHeader, p: &PoseMsg) -> Record {
+    let t_track = h.t_ns[StageKind::Tracking as usize];
+    Record {
+        seq: h.seq,
+        frame: h.frame,
+        stamp: h.stamp,
+        status: status_name(h.status()).to_string(),
+        state: p.state,
+        pose: (p.has_pose == 1).then_some(p.t_world_cam),
+        scale: p.scale,
+        keyframe: p.keyframe == 1,
+        latency_ms: if h.t_ns[0] > 0 && t_track >= h.t_ns[0] {
+            (t_track - h.t_ns[0]) as f64 * 1e-6
+        } else {
+            0.0
+        },
+    }
+}
+
+/// Runs the back end until the end of the stream has been recorded and SIGTERM arrives.
+pub fn run(args: &StageArgs) -> Result<()> {
+    let cfg = args.load_config()?.pipeline;
+    let mut rec = Recorder::open(&args.out)?;
+    let mut ctx = StageContext::new(StageKind::Backend, args.worker, &cfg)?;
+    let poses = ctx
+        .services
+        .header_topic::<PoseMsg>(&ctx.node, Topic::Poses, false)?
+        .subscriber_builder()
+        .history_request(HISTORY)
+        .create()
+        .map_err(|e| MessageError::ipc("poses subscriber", e))?;
+    let state = ctx
+        .services
+        .plain_topic::<BackendState>(&ctx.node, Topic::Backend, false)?
+        .publisher_builder()
+        .create()
+        .map_err(|e| MessageError::ipc("backend publisher", e))?;
+    let mut finished = rec.records.last().is_some_and(|r| r.status == "end");
+    let start = rec.records.last().map_or(0, |r| r.seq + 1);
+    let mut inbox: Inbox<PoseMsg> = Inbox::new(start, 1);
+    let gap = Duration::from_millis(cfg.gap_timeout_ms);
+    if !rec.records.is_empty() {
+        state
+            .send_copy(rec.state(finished))
+            .map_err(|e| MessageError::ipc("backend state", e))?;
+    }
+    ctx.started();
+    while ctx.wait() {
+        while let Some(s) = poses.receive().map_err(|e| MessageError::ipc("poses", e))? {
+            let h = *s.user_header();
+            h.check()?;
+            inbox.insert(h, *s.payload(), now_ns());
+        }
+        let mut changed = false;
+        loop {
+            if !inbox.ready() {
+                if !finished && inbox.gap_expired(gap) {
+                    let seq = inbox.skip();
+                    tracing::warn!("pose of seq {seq} never arrived; recorded lost");
+                    let h = FrameHeader::new(seq, 0, 0.0, Status::Lost);
+                    rec.add(record(&h, &PoseMsg::default()))?;
+                    ctx.frame_done(&h, now_ns(), inbox.len());
+                    changed = true;
+                    continue;
+                }
+                break;
+            }
+            let Some((h, p, _received)) = inbox.pop() else {
+                break;
+            };
+            let t_in = now_ns();
+            if finished {
+                continue;
+            }
+            rec.add(record(&h, &p))?;
+            changed = true;
+            ctx.frame_done(&h, t_in, inbox.len());
+            if h.status() == Status::EndOfStream {
+                write_outputs(&args.out, &rec.records)?;
+                finished = true;
+                ctx.finished();
+            }
+        }
+        if changed {
+            state
+                .send_copy(rec.state(finished))
+                .map_err(|e| MessageError::ipc("backend state", e))?;
+        }
+        ctx.heartbeat_if_idle();
+    }
+    // SIGINT/SIGTERM: whatever was recorded becomes the trajectory
+    write_outputs(&args.out, &rec.records)?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn records_round_trip_exactly_and_torn_lines_are_skipped() {
+        let dir = tempfile::tempdir().unwrap();
+        let r = Record {
+            seq: 3,
+            frame: 3,
+            stamp: 0.310_344_1,
+            status: "ok".into(),
+            state: 1,
+            pose: Some([
+                0.1 + 0.2,
+                -1e-17,
+                3.0,
+                1.0 / 3.0,
+                0.0,
+                1.0,
+                0.0,
+                2.5,
+                0.0,
+                0.0,
+                1.0,
+                -7.25,
+            ]),
+            scale: 12.345_678_9,
+            keyframe: true,
+            latency_ms: 150.25,
+        };
+        let path = dir.path().join("frames.csv");
+        std::fs::write(&path, format!("{CSV_HEADER}\n{}\n3,3,0.", r.csv())).unwrap();
+        assert_eq!(read_records(&path).unwrap(), vec![r]);
+    }
+}

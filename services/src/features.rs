@@ -1,0 +1,120 @@
+//! Features: XFeat keypoints and descriptors of every frame (worker `k` of `N` takes the
+//! frames with `seq % N == k`), written in place into the `features` service.
+
+use crate::common::{stamp, StageArgs, StageContext};
+use crate::inbox::Inbox;
+use anyhow::Result;
+use supermvo_dataset::GrayImage;
+use supermvo_inference::models;
+use supermvo_inference::xfeat::{XFeat, XFeatConfig};
+use supermvo_inference::Extractor;
+use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
+use supermvo_messages::iceoryx2::prelude::*;
+use supermvo_messages::{now_ns, FeatureLayout, MessageError, StageKind, Status, Topic, HISTORY};
+
+/// The extractor the daemon and `supermvo run --mode inprocess` both use.
+pub fn extractor(top_k: usize, threads: usize) -> Result<XFeat> {
+    Ok(XFeat::new(
+        &models::model_path("xfeat"),
+        XFeatConfig {
+            top_k,
+            threads,
+            ..Default::default()
+        },
+    )?)
+}
+
+/// Runs one features worker until SIGTERM.
+pub fn run(args: &StageArgs) -> Result<()> {
+    let cfg = args.load_config()?.pipeline;
+    let workers = cfg.features_workers as u64;
+    let mut xfeat = extractor(cfg.top_k, cfg.threads)?;
+    let mut ctx = StageContext::new(StageKind::Features, args.worker, &cfg)?;
+    let frames = ctx
+        .services
+        .slice_topic::<u8>(&ctx.node, Topic::Frames, false)?
+        .subscriber_builder()
+        .history_request(HISTORY)
+        .create()
+        .map_err(|e| MessageError::ipc("frames subscriber", e))?;
+    let publisher = ctx
+        .services
+        .slice_topic::<f32>(&ctx.node, Topic::Features, false)?
+        .publisher_builder()
+        .initial_max_slice_len(cfg.top_k * (3 + 64))
+        .allocation_strategy(AllocationStrategy::PowerOfTwo)
+        .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
+        .max_loaned_samples(2)
+        .create()
+        .map_err(|e| MessageError::ipc("features publisher", e))?;
+    ctx.started();
+    // frames arrive in order from one ingest; the inbox only filters this worker's share and
+    // the history a restart replays
+    let mut inbox: Option<Inbox<Option<GrayImage>>> = None;
+    while ctx.wait() {
+        while let Some(s) = frames
+            .receive()
+            .map_err(|e| MessageError::ipc("frames", e))?
+        {
+            let h = *s.user_header();
+            h.check()?;
+            let image = (h.status() == Status::Ok).then(|| GrayImage {
+                width: h.width as usize,
+                height: h.height as usize,
+                data: s.payload().to_vec(),
+            });
+            // the first frame seen fixes where this worker starts (after a restart, the
+            // oldest frame in the history)
+            let b = inbox.get_or_insert_with(|| {
+                let first = h.seq + (args.worker as u64 + workers - h.seq % workers) % workers;
+                Inbox::new(first, workers)
+            });
+            b.insert(h, image, now_ns());
+        }
+        let Some(b) = inbox.as_mut() else {
+            ctx.heartbeat_if_idle();
+            continue;
+        };
+        let _ = publisher.update_connections();
+        while let Some((h_in, image, _received)) = b.pop() {
+            let t_in = now_ns();
+            let status = match (&image, h_in.status()) {
+                (Some(img), Status::Ok) => {
+                    let f = xfeat.extract(img)?;
+                    let layout = FeatureLayout {
+                        n: f.len(),
+                        dim: f.dim,
+                    };
+                    let mut s = publisher
+                        .loan_slice(layout.len())
+                        .map_err(|e| MessageError::ipc("loaning a features sample", e))?;
+                    FeatureLayout::write(&f, s.payload_mut());
+                    let mut h = h_in.forward(Status::Ok);
+                    h.count = f.len() as u32;
+                    h.dim = f.dim as u32;
+                    stamp(&mut h, StageKind::Features);
+                    *s.user_header_mut() = h;
+                    s.send()
+                        .map_err(|e| MessageError::ipc("sending features", e))?;
+                    ctx.frame_done(&h, t_in, b.len());
+                    continue;
+                }
+                (_, st) => st,
+            };
+            let mut h = h_in.forward(status);
+            stamp(&mut h, StageKind::Features);
+            let mut s = publisher
+                .loan_slice(0)
+                .map_err(|e| MessageError::ipc("loaning a features sample", e))?;
+            *s.user_header_mut() = h;
+            s.send()
+                .map_err(|e| MessageError::ipc("sending features", e))?;
+            ctx.frame_done(&h, t_in, b.len());
+            if status == Status::EndOfStream {
+                ctx.finished();
+            }
+        }
+        ctx.heartbeat_if_idle();
+    }
+    Ok(())
+}

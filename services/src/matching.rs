@@ -1,0 +1,194 @@
+//! Matching: LighterGlue matches of each frame against the tracker's reference keyframe.
+//!
+//! Which frame is the reference is the tracker's decision for the previous frame, read from
+//! the `poses` service; so matching of frame `s` waits for the tracker's result of `s - 1`.
+//! Features are kept by sequence number until they can no longer become or be the reference.
+
+use crate::common::{stamp, StageArgs, StageContext};
+use crate::inbox::Inbox;
+use anyhow::Result;
+use std::collections::BTreeMap;
+use std::time::Duration;
+use supermvo_inference::lighterglue::{LightGlue, LightGlueConfig};
+use supermvo_inference::{models, Features, Matcher};
+use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
+use supermvo_messages::iceoryx2::prelude::*;
+use supermvo_messages::{
+    now_ns, FeatureLayout, FrameHeader, MatchEntry, MessageError, PoseMsg, StageKind, Status,
+    Topic, HISTORY,
+};
+
+/// The matcher the daemon and `supermvo run --mode inprocess` both use.
+pub fn matcher(threads: usize) -> Result<LightGlue> {
+    Ok(LightGlue::new(
+        &models::model_path("lighterglue"),
+        "lighterglue",
+        LightGlueConfig {
+            threads,
+            ..Default::default()
+        },
+    )?)
+}
+
+type MatchPublisher = supermvo_messages::iceoryx2::port::publisher::Publisher<
+    supermvo_messages::Ipc,
+    [MatchEntry],
+    FrameHeader,
+>;
+
+fn send(p: &MatchPublisher, mut h: FrameHeader, entries: &[MatchEntry]) -> Result<FrameHeader> {
+    stamp(&mut h, StageKind::Matching);
+    let s = p
+        .loan_slice_uninit(entries.len())
+        .map_err(|e| MessageError::ipc("loaning a matches sample", e))?;
+    let mut s = s.write_from_slice(entries);
+    h.count = entries.len() as u32;
+    *s.user_header_mut() = h;
+    s.send()
+        .map_err(|e| MessageError::ipc("sending matches", e))?;
+    Ok(h)
+}
+
+/// Runs the matching stage until SIGTERM.
+pub fn run(args: &StageArgs) -> Result<()> {
+    let cfg = args.load_config()?.pipeline;
+    let mut lg = matcher(cfg.threads)?;
+    let mut ctx = StageContext::new(StageKind::Matching, args.worker, &cfg)?;
+    let features = ctx
+        .services
+        .slice_topic::<f32>(&ctx.node, Topic::Features, false)?
+        .subscriber_builder()
+        .history_request(HISTORY)
+        .create()
+        .map_err(|e| MessageError::ipc("features subscriber", e))?;
+    let poses = ctx
+        .services
+        .header_topic::<PoseMsg>(&ctx.node, Topic::Poses, false)?
+        .subscriber_builder()
+        .history_request(HISTORY)
+        .create()
+        .map_err(|e| MessageError::ipc("poses subscriber", e))?;
+    let publisher = ctx
+        .services
+        .slice_topic::<MatchEntry>(&ctx.node, Topic::Matches, false)?
+        .publisher_builder()
+        .initial_max_slice_len(cfg.top_k)
+        .allocation_strategy(AllocationStrategy::PowerOfTwo)
+        .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
+        .max_loaned_samples(2)
+        .create()
+        .map_err(|e| MessageError::ipc("matches publisher", e))?;
+
+    // reference after each tracked seq; a restart continues after the last one
+    let mut refs: BTreeMap<u64, Option<u64>> = BTreeMap::new();
+    let drain_poses = |refs: &mut BTreeMap<u64, Option<u64>>| -> Result<()> {
+        while let Some(s) = poses.receive().map_err(|e| MessageError::ipc("poses", e))? {
+            let r = s.payload().reference;
+            refs.insert(s.user_header().seq, (r >= 0).then_some(r as u64));
+        }
+        Ok(())
+    };
+    drain_poses(&mut refs)?;
+    let start = refs.keys().next_back().map_or(0, |s| s + 1);
+    let mut inbox: Inbox<Option<Features>> = Inbox::new(start, 1);
+    let mut cache: BTreeMap<u64, Features> = BTreeMap::new();
+    let gap = Duration::from_millis(cfg.gap_timeout_ms);
+    ctx.started();
+    while ctx.wait() {
+        drain_poses(&mut refs)?;
+        while let Some(s) = features
+            .receive()
+            .map_err(|e| MessageError::ipc("features", e))?
+        {
+            let h = *s.user_header();
+            h.check()?;
+            let f = match h.status() {
+                Status::Ok => Some(FeatureLayout::read(&h, s.payload())?),
+                _ => None,
+            };
+            inbox.insert(h, f, now_ns());
+        }
+        let _ = publisher.update_connections();
+        loop {
+            let next = inbox.next();
+            let reference = if next == 0 {
+                Some(None)
+            } else {
+                refs.get(&(next - 1)).copied()
+            };
+            let Some(reference) = reference else {
+                break; // waiting for the tracker's decision on the previous frame
+            };
+            if !inbox.ready() {
+                if inbox.gap_expired(gap) {
+                    let seq = inbox.skip();
+                    tracing::warn!("features of seq {seq} never arrived; reported lost");
+                    let h = send(&publisher, FrameHeader::new(seq, 0, 0.0, Status::Lost), &[])?;
+                    ctx.frame_done(&h, now_ns(), inbox.len());
+                    continue;
+                }
+                break;
+            }
+            let Some((h_in, f, _received)) = inbox.pop() else {
+                break;
+            };
+            // processing time, not the wait for the tracker's decision
+            let t_in = now_ns();
+            let h = match (f, reference) {
+                (Some(f), None) => {
+                    let mut h = h_in.forward(Status::Ok);
+                    h.reference = -1;
+                    let h = send(&publisher, h, &[])?;
+                    cache.insert(h_in.seq, f);
+                    h
+                }
+                (Some(f), Some(r)) => {
+                    let h = match cache.get(&r) {
+                        Some(rf) => {
+                            let m = lg.match_features(rf, &f)?;
+                            let entries: Vec<MatchEntry> = m
+                                .pairs
+                                .iter()
+                                .zip(&m.scores)
+                                .map(|(&(a, b), &score)| MatchEntry {
+                                    a: a as u32,
+                                    b: b as u32,
+                                    score,
+                                })
+                                .collect();
+                            let mut h = h_in.forward(Status::Ok);
+                            h.reference = r as i64;
+                            send(&publisher, h, &entries)?
+                        }
+                        None => {
+                            tracing::warn!(
+                                "seq {}: features of reference {r} are gone (restart); the tracker starts again",
+                                h_in.seq
+                            );
+                            send(&publisher, h_in.forward(Status::NoReference), &[])?
+                        }
+                    };
+                    cache.insert(h_in.seq, f);
+                    h
+                }
+                (None, _) => send(&publisher, h_in.forward(h_in.status()), &[])?,
+            };
+            ctx.frame_done(&h, t_in, inbox.len());
+            if h.status() == Status::EndOfStream {
+                ctx.finished();
+            }
+            // keep only what can still be a reference: the current one and later frames
+            let keep_from = refs
+                .get(&h.seq)
+                .copied()
+                .flatten()
+                .or(reference)
+                .unwrap_or(h.seq)
+                .min(h.seq);
+            cache = cache.split_off(&keep_from);
+            refs = refs.split_off(&h.seq.saturating_sub(1));
+        }
+        ctx.heartbeat_if_idle();
+    }
+    Ok(())
+}

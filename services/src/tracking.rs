@@ -1,0 +1,220 @@
+//! Tracking: the VO tracker over the features and matches of each frame, publishing its
+//! result (pose, state and the reference keyframe for the next frame) on `poses`.
+//!
+//! A restarted tracker continues from the back end's last recorded pose and map scale.
+
+use crate::common::{stamp, StageArgs, StageContext};
+use crate::inbox::Inbox;
+use anyhow::Result;
+use std::time::Duration;
+use supermvo_config::PipelineConfig;
+use supermvo_dataset::KittiSequence;
+use supermvo_geometry::{Mat3, Pose, Vec3};
+use supermvo_inference::{Features, Matches};
+use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
+use supermvo_messages::iceoryx2::prelude::*;
+use supermvo_messages::{
+    now_ns, BackendState, FeatureLayout, FrameHeader, MessageError, PoseMsg, StageKind, Status,
+    Topic, HISTORY,
+};
+use supermvo_vo::tracker::{FrameMeta, FrameOutput, Tracker, TrackerConfig, TrackingState};
+
+/// The tracker configuration the daemon and `supermvo run --mode inprocess` both use.
+pub fn tracker_config(cfg: &PipelineConfig) -> TrackerConfig {
+    TrackerConfig {
+        local_ba_window: cfg.ba_window,
+        ..TrackerConfig::default()
+    }
+}
+
+/// A tracker result as a message payload.
+pub fn pose_msg(o: &FrameOutput) -> PoseMsg {
+    PoseMsg {
+        state: match o.state {
+            TrackingState::Initializing => 0,
+            TrackingState::Tracking => 1,
+            TrackingState::Lost => 2,
+        },
+        has_pose: o.pose.is_some() as u32,
+        t_world_cam: o.pose.unwrap_or_default(),
+        keyframe: o.keyframe as u32,
+        keypoints: o.keypoints as u32,
+        matches: o.matches as u32,
+        inliers: o.inliers as u32,
+        landmarks: o.landmarks as u64,
+        reference: o.reference.map_or(-1, |r| r as i64),
+        scale: o.scale.unwrap_or(0.0),
+    }
+}
+
+/// `T_world_cam` of a 3x4 row-major array.
+pub fn pose_of(p: &[f64; 12]) -> Pose {
+    Pose::new(
+        Mat3::new(p[0], p[1], p[2], p[4], p[5], p[6], p[8], p[9], p[10]),
+        Vec3::new(p[3], p[7], p[11]),
+    )
+}
+
+/// Runs the tracking stage until SIGTERM.
+pub fn run(args: &StageArgs) -> Result<()> {
+    let cfg = args.load_config()?.pipeline;
+    let seq = KittiSequence::open(&args.seq)?;
+    let mut tracker = Tracker::new(seq.calib, tracker_config(&cfg));
+    let mut ctx = StageContext::new(StageKind::Tracking, args.worker, &cfg)?;
+    let features = ctx
+        .services
+        .slice_topic::<f32>(&ctx.node, Topic::Features, false)?
+        .subscriber_builder()
+        .history_request(HISTORY)
+        .create()
+        .map_err(|e| MessageError::ipc("features subscriber", e))?;
+    let matches = ctx
+        .services
+        .slice_topic::<MatchEntry>(&ctx.node, Topic::Matches, false)?
+        .subscriber_builder()
+        .history_request(HISTORY)
+        .create()
+        .map_err(|e| MessageError::ipc("matches subscriber", e))?;
+    let backend = ctx
+        .services
+        .plain_topic::<BackendState>(&ctx.node, Topic::Backend, false)?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| MessageError::ipc("backend subscriber", e))?;
+    let publisher = ctx
+        .services
+        .header_topic::<PoseMsg>(&ctx.node, Topic::Poses, false)?
+        .publisher_builder()
+        .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
+        .create()
+        .map_err(|e| MessageError::ipc("poses publisher", e))?;
+
+    // restore: continue after what the back end has recorded
+    let mut start = 0;
+    while let Some(s) = backend
+        .receive()
+        .map_err(|e| MessageError::ipc("backend", e))?
+    {
+        let b = *s.payload();
+        if b.recorded > 0 {
+            start = b.seq + 1;
+            if b.has_pose == 1 {
+                let scale = (b.scale > 0.0).then_some(b.scale);
+                tracker.restore(&pose_of(&b.t_world_cam), scale);
+            }
+        }
+    }
+    if start > 0 {
+        tracing::info!("restored: continuing at seq {start}");
+    }
+    let mut feats: Inbox<Option<Features>> = Inbox::new(start, 1);
+    let mut pairs: Inbox<Vec<MatchEntry>> = Inbox::new(start, 1);
+    let gap = Duration::from_millis(cfg.gap_timeout_ms);
+    ctx.started();
+    while ctx.wait() {
+        while let Some(s) = features
+            .receive()
+            .map_err(|e| MessageError::ipc("features", e))?
+        {
+            let h = *s.user_header();
+            h.check()?;
+            let f = match h.status() {
+                Status::Ok => Some(FeatureLayout::read(&h, s.payload())?),
+                _ => None,
+            };
+            feats.insert(h, f, now_ns());
+        }
+        while let Some(s) = matches
+            .receive()
+            .map_err(|e| MessageError::ipc("matches", e))?
+        {
+            let h = *s.user_header();
+            h.check()?;
+            pairs.insert(h, s.payload().to_vec(), now_ns());
+        }
+        let _ = publisher.update_connections();
+        loop {
+            if !(feats.ready() && pairs.ready()) {
+                let expired = feats.gap_expired(gap) || pairs.gap_expired(gap);
+                if expired {
+                    let seq = feats.next();
+                    tracing::warn!("input of seq {seq} never arrived; reported lost");
+                    feats.reset_to(seq + 1);
+                    pairs.reset_to(seq + 1);
+                    let msg = no_frame(&tracker);
+                    let h = publish(&publisher, FrameHeader::new(seq, 0, 0.0, Status::Lost), msg)?;
+                    ctx.frame_done(&h, now_ns(), feats.len());
+                    continue;
+                }
+                break;
+            }
+            let (Some((fh, f, t_f)), Some((mh, m, t_m))) = (feats.pop(), pairs.pop()) else {
+                break;
+            };
+            let _received = t_f.max(t_m);
+            let t_in = now_ns();
+            let h = match (fh.status(), mh.status(), f) {
+                (Status::Ok, Status::Ok | Status::NoReference, Some(f)) => {
+                    // matches count only against the reference the tracker actually holds
+                    let current = tracker.reference().map(|(r, _)| r as i64);
+                    let m =
+                        (mh.status() == Status::Ok && current == Some(mh.reference)).then(|| {
+                            Matches {
+                                pairs: m.iter().map(|e| (e.a as usize, e.b as usize)).collect(),
+                                scores: m.iter().map(|e| e.score).collect(),
+                            }
+                        });
+                    let meta = FrameMeta {
+                        index: fh.seq as usize,
+                        stamp: fh.stamp,
+                    };
+                    let out = tracker.step(meta, f, m.as_ref());
+                    let mut h = fh.forward(Status::Ok);
+                    h.t_ns[StageKind::Matching as usize] = mh.t_ns[StageKind::Matching as usize];
+                    publish(&publisher, h, pose_msg(&out))?
+                }
+                (st_f, st_m, _) => {
+                    let st = if st_f != Status::Ok { st_f } else { st_m };
+                    let mut h = fh.forward(st);
+                    h.t_ns[StageKind::Matching as usize] = mh.t_ns[StageKind::Matching as usize];
+                    publish(&publisher, h, no_frame(&tracker))?
+                }
+            };
+            ctx.frame_done(&h, t_in, feats.len());
+            if h.status() == Status::EndOfStream {
+                ctx.finished();
+            }
+        }
+        ctx.heartbeat_if_idle();
+    }
+    Ok(())
+}
+
+/// The message for a frame the tracker did not see (dropped, unreadable, lost, end).
+fn no_frame(tracker: &Tracker) -> PoseMsg {
+    PoseMsg {
+        state: 3,
+        reference: tracker.reference().map_or(-1, |(r, _)| r as i64),
+        ..Default::default()
+    }
+}
+
+type PosePublisher = supermvo_messages::iceoryx2::port::publisher::Publisher<
+    supermvo_messages::Ipc,
+    PoseMsg,
+    FrameHeader,
+>;
+
+fn publish(p: &PosePublisher, mut h: FrameHeader, msg: PoseMsg) -> Result<FrameHeader> {
+    stamp(&mut h, StageKind::Tracking);
+    let s = p
+        .loan_uninit()
+        .map_err(|e| MessageError::ipc("loaning a pose sample", e))?;
+    let mut s = s.write_payload(msg);
+    *s.user_header_mut() = h;
+    s.send()
+        .map_err(|e| MessageError::ipc("sending a pose", e))?;
+    Ok(h)
+}
+
+use supermvo_messages::MatchEntry;

@@ -1,0 +1,313 @@
+//! The multi-process daemon end to end: real stage processes over real iceoryx2 shared memory.
+//!
+//! - lossless multi-process gives the in-process trajectory bit for bit (KITTI 03);
+//! - `kill -9` of each stage in turn mid-run: restarted, the run completes, every frame is
+//!   accounted for, nothing is left in shared memory;
+//! - bad input: missing stage binaries, bad config, a second pipeline of the same name.
+//!
+//! The tests run one at a time (they watch the shared-memory directories).
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
+
+use nix::sys::signal::{kill, Signal};
+use nix::unistd::Pid;
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+use supermvo_config::Config;
+use supermvo_dataset::{GrayImage, KittiSequence};
+use supermvo_services::backend::read_records;
+use supermvo_services::supervisor::{self, SupervisorOptions};
+use supermvo_services::{features, matching, tracking};
+use supermvo_vo::stage::Stage;
+use supermvo_vo::tracker::{FrameInput, Tracker, VoPipeline};
+
+static SERIAL: Mutex<()> = Mutex::new(());
+
+fn shared_data(sub: &str) -> Option<PathBuf> {
+    let base = std::env::var_os("SUPERMVO_SHARED")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared"));
+    let p = base.join("data").join(sub);
+    if p.exists() {
+        return Some(p);
+    }
+    assert!(
+        std::env::var("SUPERMVO_REQUIRE_SHARED").as_deref() != Ok("1"),
+        "{} is missing and SUPERMVO_REQUIRE_SHARED=1",
+        p.display()
+    );
+    eprintln!("SKIP: {} not found", p.display());
+    None
+}
+
+fn models_ready() -> bool {
+    let ok = ["xfeat", "lighterglue"]
+        .iter()
+        .all(|m| supermvo_inference::models::model_path(m).is_file())
+        && supermvo_inference::runtime::init(None).is_ok();
+    if !ok {
+        assert!(
+            std::env::var("SUPERMVO_REQUIRE_SHARED").as_deref() != Ok("1"),
+            "run 'supermvo models fetch' first"
+        );
+        eprintln!("SKIP: models not fetched");
+    }
+    ok
+}
+
+fn bin_dir() -> PathBuf {
+    Path::new(env!("CARGO_BIN_EXE_supermvo-ingest"))
+        .parent()
+        .unwrap()
+        .to_path_buf()
+}
+
+/// Files iceoryx2 keeps for live nodes and services.
+fn ipc_files() -> BTreeSet<String> {
+    let mut s = BTreeSet::new();
+    for dir in ["/dev/shm", "/tmp/iceoryx2"] {
+        let mut stack = vec![PathBuf::from(dir)];
+        while let Some(d) = stack.pop() {
+            let Ok(rd) = std::fs::read_dir(&d) else {
+                continue;
+            };
+            for e in rd.flatten() {
+                let p = e.path();
+                if p.is_dir() {
+                    stack.push(p);
+                } else {
+                    s.insert(p.display().to_string());
+                }
+            }
+        }
+    }
+    s
+}
+
+fn options(name: &str, seq: &Path, out: &Path, max_frames: usize) -> SupervisorOptions {
+    let mut config = Config::default();
+    config.pipeline.name = format!("{name}-{}", std::process::id());
+    config.pipeline.max_frames = max_frames;
+    SupervisorOptions {
+        config,
+        seq: seq.to_path_buf(),
+        out: out.to_path_buf(),
+        bin_dir: bin_dir(),
+        quiet: true,
+    }
+}
+
+#[test]
+fn multiprocess_lossless_equals_inprocess_bit_for_bit_on_kitti_03() {
+    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(seq_dir) = shared_data("kitti/sequences/03") else {
+        return;
+    };
+    if !models_ready() {
+        return;
+    }
+    let before = ipc_files();
+    let tmp = tempfile::tempdir().unwrap();
+    let opts = options("parity", &seq_dir, tmp.path(), 0);
+    let metrics = supervisor::run(&opts).unwrap();
+    let records = read_records(&tmp.path().join("frames.csv")).unwrap();
+
+    // the same stages, in this process, one frame after the other
+    let seq = KittiSequence::open(&seq_dir).unwrap();
+    let p = &opts.config.pipeline;
+    let mut vo = VoPipeline::new(
+        Box::new(features::extractor(p.top_k, p.threads).unwrap()),
+        Box::new(matching::matcher(p.threads).unwrap()),
+        Tracker::new(seq.calib, tracking::tracker_config(p)),
+    );
+    let n = seq.images.len();
+    assert_eq!(records.len(), n + 1, "every frame and the end of stream");
+    for (i, rec) in records.iter().take(n).enumerate() {
+        let out = vo
+            .process(FrameInput {
+                index: i,
+                stamp: seq.times[i],
+                image: GrayImage::load(&seq.images[i]).unwrap(),
+            })
+            .unwrap();
+        assert_eq!(rec.seq, i as u64);
+        assert_eq!(rec.status, "ok");
+        assert_eq!(rec.stamp.to_bits(), seq.times[i].to_bits());
+        // bit for bit: compare the f64 bit patterns
+        let bits = |p: Option<[f64; 12]>| p.map(|a| a.map(f64::to_bits));
+        assert_eq!(bits(rec.pose), bits(out.pose), "frame {i}");
+        assert_eq!(rec.keyframe, out.keyframe, "frame {i}");
+    }
+    assert_eq!(records[n].status, "end");
+    assert_eq!(metrics.frames.get("ok"), Some(&n));
+    assert!(metrics.restarts.is_empty());
+    assert!(metrics.end_to_end_ms.count == n);
+    assert_eq!(
+        ipc_files(),
+        before,
+        "shared-memory files left after shutdown"
+    );
+}
+
+#[test]
+fn killed_stages_are_restarted_and_every_frame_is_accounted_for() {
+    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(seq_dir) = shared_data("kitti/sequences/00") else {
+        return;
+    };
+    if !models_ready() {
+        return;
+    }
+    let before = ipc_files();
+    let tmp = tempfile::tempdir().unwrap();
+    let frames = 150;
+    let mut opts = options("fault", &seq_dir, tmp.path(), frames);
+    opts.config.pipeline.gap_timeout_ms = 3000;
+    let out = tmp.path().to_path_buf();
+    let handle = std::thread::spawn(move || supervisor::run(&opts));
+
+    let recorded = |out: &Path| read_records(&out.join("frames.csv")).map_or(0, |r| r.len());
+    let pid_of = |out: &Path, stage: &str| -> Option<i32> {
+        let text = std::fs::read_to_string(out.join("processes.json")).ok()?;
+        let v: serde_json::Value = serde_json::from_str(&text).ok()?;
+        v.as_array()?
+            .iter()
+            .find(|p| p["stage"] == stage)
+            .and_then(|p| p["pid"].as_i64())
+            .map(|p| p as i32)
+    };
+    let stages = ["ingest", "features", "matching", "tracking", "backend"];
+    let t0 = Instant::now();
+    for (k, stage) in stages.iter().enumerate() {
+        let at = 10 + 22 * k;
+        while recorded(&out) < at {
+            assert!(
+                t0.elapsed() < Duration::from_secs(400),
+                "run stalled before killing {stage}"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let pid = pid_of(&out, stage).unwrap();
+        kill(Pid::from_raw(pid), Signal::SIGKILL).unwrap();
+        eprintln!("killed {stage} (pid {pid}) after {} frames", recorded(&out));
+        // wait for its successor before the next kill
+        while pid_of(&out, stage) == Some(pid) {
+            assert!(t0.elapsed() < Duration::from_secs(400));
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+    let metrics = handle.join().unwrap().unwrap();
+    eprintln!(
+        "{}",
+        serde_json::to_string_pretty(&metrics.restarts).unwrap()
+    );
+    assert_eq!(metrics.restarts.len(), stages.len());
+    for r in &metrics.restarts {
+        assert!(r.respawn_ms < 1000.0, "{r:?}");
+        assert!(r.ready_ms.is_some(), "{r:?} never came back up");
+        assert!(r.reason.contains("signal: 9"), "{r:?}");
+    }
+    // every frame is in the record exactly once, processed or reported
+    let records = read_records(&out.join("frames.csv")).unwrap();
+    let seqs: Vec<u64> = records.iter().map(|r| r.seq).collect();
+    assert_eq!(seqs, (0..=frames as u64).collect::<Vec<_>>());
+    assert_eq!(records.last().unwrap().status, "end");
+    let ok = records.iter().filter(|r| r.status == "ok").count();
+    let reported: usize = metrics.frames.values().sum();
+    assert_eq!(reported, frames);
+    eprintln!(
+        "frames: {:?}; {} with a pose",
+        metrics.frames, metrics.estimated
+    );
+    assert!(ok >= frames - 20, "{:?}", metrics.frames);
+    assert!(out.join("trajectory.tum.txt").is_file());
+    assert_eq!(
+        ipc_files(),
+        before,
+        "shared-memory files left after shutdown"
+    );
+}
+
+#[test]
+fn missing_binaries_and_bad_config_start_nothing() {
+    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(seq_dir) = shared_data("kitti/sequences/06") else {
+        return;
+    };
+    let before = ipc_files();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut opts = options("bad", &seq_dir, &tmp.path().join("out"), 5);
+    opts.bin_dir = tmp.path().join("no-binaries");
+    let err = supervisor::run(&opts).unwrap_err().to_string();
+    assert!(
+        err.contains("stage binaries missing") && err.contains("supermvo-features"),
+        "{err}"
+    );
+    assert!(!tmp.path().join("out/processes.json").exists());
+
+    // config errors come from the supervisor binary as one line naming key and range
+    let cfg = tmp.path().join("c.toml");
+    for (text, needles) in [
+        (
+            "[pipeline]\nworkerz = 2\n",
+            vec!["unknown field", "workerz", "line 2"],
+        ),
+        (
+            "[pipeline]\nfeatures_workers = 9\n",
+            vec!["pipeline.features_workers", "[1, 8]"],
+        ),
+    ] {
+        std::fs::write(&cfg, text).unwrap();
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_supermvo-supervisor"))
+            .args([
+                "--config",
+                cfg.to_str().unwrap(),
+                "--seq",
+                seq_dir.to_str().unwrap(),
+            ])
+            .arg("--out")
+            .arg(tmp.path().join("out2"))
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        for n in needles {
+            assert!(stderr.contains(n), "{n:?} not in {stderr}");
+        }
+        assert!(
+            stderr.starts_with("error: ") && !stderr.contains("panicked"),
+            "{stderr}"
+        );
+    }
+    assert_eq!(ipc_files(), before);
+}
+
+#[test]
+fn a_second_pipeline_under_a_running_name_is_refused() {
+    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(seq_dir) = shared_data("kitti/sequences/06") else {
+        return;
+    };
+    if !models_ready() {
+        return;
+    }
+    let before = ipc_files();
+    let tmp = tempfile::tempdir().unwrap();
+    let first = options("twice", &seq_dir, &tmp.path().join("a"), 20);
+    let second = options("twice", &seq_dir, &tmp.path().join("b"), 20);
+    let a_out = tmp.path().join("a");
+    let handle = std::thread::spawn(move || supervisor::run(&first));
+    let t0 = Instant::now();
+    while !a_out.join("processes.json").exists() {
+        assert!(t0.elapsed() < Duration::from_secs(60));
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let err = supervisor::run(&second).unwrap_err().to_string();
+    assert!(err.contains("is already running"), "{err}");
+    assert!(!tmp.path().join("b/processes.json").exists());
+    // the first one is undisturbed
+    let m = handle.join().unwrap().unwrap();
+    assert_eq!(m.frames.values().sum::<usize>(), 20);
+    assert_eq!(ipc_files(), before);
+}
