@@ -197,6 +197,7 @@ impl Recorder {
             t_world_cam: self.last_pose.map(|p| p.0).unwrap_or_default(),
             scale: self.last_pose.map_or(0.0, |p| p.1),
             recorded: self.records.len() as u64,
+            state: last.map_or(0, |r| r.state),
             finished: finished as u32,
         }
     }

@@ -12,5 +12,6 @@ pub mod features;
 pub mod inbox;
 pub mod ingest;
 pub mod matching;
+pub mod monitor;
 pub mod supervisor;
 pub mod tracking;

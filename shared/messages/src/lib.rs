@@ -235,6 +235,8 @@ pub struct BackendState {
     pub scale: f64,
     /// Frames recorded so far (with or without pose).
     pub recorded: u64,
+    /// Tracker state of the last frame recorded (see [`PoseMsg::state`]).
+    pub state: u32,
     /// 1 once the end of the stream was recorded and the trajectory written.
     pub finished: u32,
 }
@@ -616,11 +618,16 @@ impl Services {
     }
 }
 
+/// Limits iceoryx2's own log to errors (it warns that it runs on its built-in default
+/// configuration, which is what SuPerMVO intends).
+pub fn quiet_ipc_logs() {
+    set_log_level(LogLevel::Error);
+}
+
 /// Creates a node for a pipeline process. iceoryx2's own signal handling is on, so SIGINT
 /// and SIGTERM end `node.wait` and the process shuts down cleanly.
 pub fn create_node(name: &NodeName) -> Result<IpcNode, MessageError> {
-    // iceoryx2 warns that it runs on its built-in defaults, which is what we intend
-    set_log_level(LogLevel::Error);
+    quiet_ipc_logs();
     NodeBuilder::new()
         .name(name)
         .create::<Ipc>()

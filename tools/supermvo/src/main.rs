@@ -14,6 +14,7 @@ macro_rules! outln {
 }
 
 mod bench_cmd;
+mod daemon_cmd;
 mod eval_cmd;
 mod features_cmd;
 mod graph_cmd;
@@ -45,6 +46,10 @@ enum Command {
     Graph(graph_cmd::GraphArgs),
     /// Benchmarks (medians of repeated calls), e.g. of the learned front end.
     Bench(bench_cmd::BenchArgs),
+    /// Attach to a running pipeline read-only: rates, latencies, tracking state, pose.
+    Monitor(daemon_cmd::MonitorArgs),
+    /// List the nodes and services of running pipelines.
+    Inspect(daemon_cmd::InspectArgs),
 }
 
 fn main() -> ExitCode {
@@ -63,6 +68,8 @@ fn main() -> ExitCode {
         Command::Features(args) => features_cmd::run(&args),
         Command::Bench(args) => bench_cmd::run(&args),
         Command::Graph(args) => graph_cmd::run(&args),
+        Command::Monitor(args) => daemon_cmd::monitor(&args),
+        Command::Inspect(args) => daemon_cmd::inspect_cmd(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
