@@ -7,6 +7,7 @@
 //! ([`supermvo_vo::tracker::VoPipeline`]), so both modes give the same trajectory.
 
 pub mod backend;
+pub mod bench_ipc;
 pub mod common;
 pub mod features;
 pub mod inbox;

@@ -17,6 +17,20 @@ pub struct BenchArgs {
 
 #[derive(Debug, Subcommand)]
 enum BenchCommand {
+    /// One hop of an image and of keypoints: iceoryx2 between processes vs a crossbeam
+    /// channel between threads (p50, p99).
+    Ipc {
+        /// Hops per payload and transport (after 20 warm-up hops).
+        #[arg(long, default_value_t = 1000)]
+        samples: usize,
+    },
+    /// The receiving process of `bench ipc` (started by it).
+    #[command(hide = true)]
+    IpcEcho {
+        /// Benchmark name.
+        #[arg(long)]
+        name: String,
+    },
     /// Matches and 5-point RANSAC inliers on every consecutive pair of KITTI sequences.
     Matching {
         /// Sequence directories (`.../sequences/NN`).
@@ -67,6 +81,23 @@ fn median_ms(mut f: impl FnMut() -> Result<()>, runs: usize) -> Result<f64> {
 /// Runs `supermvo bench`; prints one JSON object of medians in milliseconds.
 pub fn run(args: &BenchArgs) -> Result<()> {
     let (image_a, image_b, runs, threads) = match &args.command {
+        BenchCommand::Ipc { samples } => {
+            let exe = std::env::current_exe()?;
+            let rows = supermvo_services::bench_ipc::run(&exe, (*samples).max(10))?;
+            for r in &rows {
+                outln!(
+                    "{:<38} {:<40} {:>8} B  p50 {:>8.1} us  p99 {:>8.1} us",
+                    r.transport,
+                    r.payload,
+                    r.bytes,
+                    r.p50_us,
+                    r.p99_us
+                );
+            }
+            outln!("{}", serde_json::to_string(&rows)?);
+            return Ok(());
+        }
+        BenchCommand::IpcEcho { name } => return supermvo_services::bench_ipc::echo(name),
         BenchCommand::Frontend {
             image_a,
             image_b,
