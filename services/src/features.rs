@@ -81,6 +81,11 @@ pub fn run(args: &StageArgs) -> Result<()> {
             let status = match (&image, h_in.status()) {
                 (Some(img), Status::Ok) => {
                     let f = xfeat.extract(img)?;
+                    if cfg.features_extra_latency_ms > 0 {
+                        std::thread::sleep(std::time::Duration::from_millis(
+                            cfg.features_extra_latency_ms,
+                        ));
+                    }
                     let layout = FeatureLayout {
                         n: f.len(),
                         dim: f.dim,

@@ -1,7 +1,8 @@
 //! Ingest: replays a KITTI-layout sequence into the `frames` service, at the dataset's frame
 //! rate (real-time mode: frames the pipeline cannot take are dropped here and reported) or as
 //! fast as the pipeline accepts (lossless mode: at most [`MAX_IN_FLIGHT`] frames between
-//! ingest and tracking, so back-pressure replaces loss).
+//! ingest and tracking, so back-pressure replaces loss; in real-time mode at most
+//! [`REALTIME_IN_FLIGHT`], so latency stays bounded).
 
 use crate::common::{stamp, StageArgs, StageContext};
 use anyhow::{bail, Result};
@@ -14,6 +15,10 @@ use supermvo_messages::{
     now_ns, BackendState, FrameHeader, MessageError, PoseMsg, StageKind, Status, Topic,
     MAX_IN_FLIGHT,
 };
+
+/// Frames in flight at most in real-time mode: a frame that would wait behind more than this
+/// is stale by the time it is processed, so it is dropped (and reported) instead.
+pub const REALTIME_IN_FLIGHT: usize = 2;
 
 /// The frames the replay emits: `seq` maps to a frame of the sequence and a timestamp that
 /// keeps growing across loops.
@@ -158,7 +163,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
                     ctx.heartbeat_if_idle();
                     continue;
                 }
-                if in_flight as usize >= MAX_IN_FLIGHT {
+                if in_flight as usize >= REALTIME_IN_FLIGHT {
                     let mut h = FrameHeader::new(next, index as u64, t, Status::Dropped);
                     stamp(&mut h, StageKind::Ingest);
                     send_header_only(&frames, h)?;

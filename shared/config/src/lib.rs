@@ -94,6 +94,9 @@ pub struct PipelineConfig {
     pub max_frames: usize,
     /// Replay the sequence this many times (soak tests), [1, 100000].
     pub loops: usize,
+    /// Extra wait per frame in each features worker, ms, [0, 10000]: emulates a front end
+    /// that waits on an accelerator (for scaling tests); 0 in normal use.
+    pub features_extra_latency_ms: u64,
 }
 
 impl Default for PipelineConfig {
@@ -112,6 +115,7 @@ impl Default for PipelineConfig {
             gap_timeout_ms: 10_000,
             max_frames: 0,
             loops: 1,
+            features_extra_latency_ms: 0,
         }
     }
 }
@@ -164,6 +168,12 @@ impl PipelineConfig {
         range("deadline_ms", self.deadline_ms, 1000, 600_000)?;
         range("gap_timeout_ms", self.gap_timeout_ms, 500, 600_000)?;
         range("loops", self.loops, 1, 100_000)?;
+        range(
+            "features_extra_latency_ms",
+            self.features_extra_latency_ms,
+            0,
+            10_000,
+        )?;
         Ok(())
     }
 }
