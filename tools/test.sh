@@ -5,6 +5,6 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash tools/setup.sh
-cargo build --release -p supermvo
+cargo build --release --workspace --bins
 ./target/release/supermvo models fetch onnxruntime xfeat lighterglue lighterglue-l3
 cargo test --workspace --release "$@"

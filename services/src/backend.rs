@@ -143,10 +143,13 @@ pub fn write_outputs(out: &Path, records: &[Record]) -> Result<()> {
     Ok(())
 }
 
+/// The record on disk; in memory only what a restarted tracker needs (memory stays flat
+/// however long the run).
 struct Recorder {
     path: PathBuf,
     file: std::fs::File,
-    records: Vec<Record>,
+    count: usize,
+    last: Option<Record>,
     last_pose: Option<([f64; 12], f64)>,
 }
 
@@ -172,7 +175,8 @@ impl Recorder {
         Ok(Self {
             path,
             file,
-            records,
+            count: records.len(),
+            last: records.last().cloned(),
             last_pose,
         })
     }
@@ -184,19 +188,20 @@ impl Recorder {
         if let Some(p) = r.pose {
             self.last_pose = Some((p, r.scale));
         }
-        self.records.push(r);
+        self.count += 1;
+        self.last = Some(r);
         Ok(())
     }
 
     fn state(&self, finished: bool) -> BackendState {
-        let last = self.records.last();
+        let last = self.last.as_ref();
         BackendState {
             seq: last.map_or(0, |r| r.seq),
             frame: last.map_or(0, |r| r.frame),
             has_pose: self.last_pose.is_some() as u32,
             t_world_cam: self.last_pose.map(|p| p.0).unwrap_or_default(),
             scale: self.last_pose.map_or(0.0, |p| p.1),
-            recorded: self.records.len() as u64,
+            recorded: self.count as u64,
             state: last.map_or(0, |r| r.state),
             finished: finished as u32,
         }
@@ -240,11 +245,11 @@ pub fn run(args: &StageArgs) -> Result<()> {
         .publisher_builder()
         .create()
         .map_err(|e| MessageError::ipc("backend publisher", e))?;
-    let mut finished = rec.records.last().is_some_and(|r| r.status == "end");
-    let start = rec.records.last().map_or(0, |r| r.seq + 1);
+    let mut finished = rec.last.as_ref().is_some_and(|r| r.status == "end");
+    let start = rec.last.as_ref().map_or(0, |r| r.seq + 1);
     let mut inbox: Inbox<PoseMsg> = Inbox::new(start, 1);
     let gap = Duration::from_millis(cfg.gap_timeout_ms);
-    if !rec.records.is_empty() {
+    if rec.count > 0 {
         state
             .send_copy(rec.state(finished))
             .map_err(|e| MessageError::ipc("backend state", e))?;
@@ -281,7 +286,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
             changed = true;
             ctx.frame_done(&h, t_in, inbox.len());
             if h.status() == Status::EndOfStream {
-                write_outputs(&args.out, &rec.records)?;
+                write_outputs(&args.out, &read_records(&rec.path)?)?;
                 finished = true;
                 ctx.finished();
             }
@@ -294,7 +299,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
         ctx.heartbeat_if_idle();
     }
     // SIGINT/SIGTERM: whatever was recorded becomes the trajectory
-    write_outputs(&args.out, &rec.records)?;
+    write_outputs(&args.out, &read_records(&rec.path)?)?;
     Ok(())
 }
 

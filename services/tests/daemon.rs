@@ -311,3 +311,63 @@ fn a_second_pipeline_under_a_running_name_is_refused() {
     assert_eq!(m.frames.values().sum::<usize>(), 20);
     assert_eq!(ipc_files(), before);
 }
+
+#[test]
+fn sigint_and_sigterm_shut_down_cleanly_with_the_trajectory_written() {
+    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(seq_dir) = shared_data("kitti/sequences/00") else {
+        return;
+    };
+    if !models_ready() {
+        return;
+    }
+    let before = ipc_files();
+    for signal in [Signal::SIGINT, Signal::SIGTERM] {
+        let tmp = tempfile::tempdir().unwrap();
+        let cfg = tmp.path().join("c.toml");
+        std::fs::write(
+            &cfg,
+            format!("[pipeline]\nname = \"sig-{}\"\n", std::process::id()),
+        )
+        .unwrap();
+        let out = tmp.path().join("out");
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_supermvo-supervisor"))
+            .args([
+                "--config",
+                cfg.to_str().unwrap(),
+                "--seq",
+                seq_dir.to_str().unwrap(),
+                "-q",
+            ])
+            .arg("--out")
+            .arg(&out)
+            .stdout(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        let t0 = Instant::now();
+        while read_records(&out.join("frames.csv")).map_or(0, |r| r.len()) < 10 {
+            assert!(t0.elapsed() < Duration::from_secs(120));
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        kill(Pid::from_raw(child.id() as i32), signal).unwrap();
+        let status = child.wait().unwrap();
+        assert!(status.success(), "{signal:?}: {status}");
+        let m: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap())
+                .unwrap();
+        assert_eq!(m["interrupted"], true);
+        let recorded = read_records(&out.join("frames.csv")).unwrap();
+        assert!(
+            recorded.len() >= 10 && recorded.len() < 160,
+            "{}",
+            recorded.len()
+        );
+        let traj = std::fs::read_to_string(out.join("trajectory.tum.txt")).unwrap();
+        assert_eq!(
+            traj.lines().count(),
+            recorded.iter().filter(|r| r.pose.is_some()).count(),
+            "{signal:?}: the trajectory holds every recorded pose"
+        );
+        assert_eq!(ipc_files(), before, "{signal:?}: shared memory left behind");
+    }
+}

@@ -130,7 +130,10 @@ struct Keyframe {
 pub struct Tracker {
     calib: Calibration,
     cfg: TrackerConfig,
-    landmarks: Vec<Landmark>,
+    /// The active map by landmark id: landmarks leave it once no keyframe of the local
+    /// window observes them (nothing can use them again), so memory stays flat on long runs.
+    landmarks: std::collections::BTreeMap<usize, Landmark>,
+    next_landmark: usize,
     /// `T_cam_world` of every keyframe, by id (refined by the local BA).
     keyframe_poses: Vec<(Mat3, Vec3)>,
     keyframe: Option<Keyframe>,
@@ -183,7 +186,8 @@ impl Tracker {
         Self {
             calib,
             cfg,
-            landmarks: Vec::new(),
+            landmarks: std::collections::BTreeMap::new(),
+            next_landmark: 0,
             keyframe_poses: Vec::new(),
             keyframe: None,
             frames_since_keyframe: 0,
@@ -198,8 +202,10 @@ impl Tracker {
             .iter()
             .map(|(k, kp)| (*k, bearing(&self.calib, kp)))
             .collect();
-        self.landmarks.push(Landmark { p, obs });
-        self.landmarks.len() - 1
+        let id = self.next_landmark;
+        self.next_landmark += 1;
+        self.landmarks.insert(id, Landmark { p, obs });
+        id
     }
 
     /// Registers a keyframe pose and returns its id.
@@ -219,7 +225,7 @@ impl Tracker {
         let first = n.saturating_sub(window);
         let mut point_ids = Vec::new();
         let mut observations = Vec::new();
-        for (id, lm) in self.landmarks.iter().enumerate() {
+        for (&id, lm) in self.landmarks.iter() {
             let inside: Vec<&(usize, Vec3)> = lm.obs.iter().filter(|(k, _)| *k >= first).collect();
             if inside.len() < 2 {
                 continue;
@@ -240,7 +246,7 @@ impl Tracker {
         let mut ba = crate::ba::LocalBa {
             poses: self.keyframe_poses[first..].to_vec(),
             fixed: (first..n).map(|k| k < first + 2).collect(),
-            points: point_ids.iter().map(|&id| self.landmarks[id].p).collect(),
+            points: point_ids.iter().map(|id| self.landmarks[id].p).collect(),
             observations,
             huber: 2.0 / self.focal(),
         };
@@ -255,7 +261,9 @@ impl Tracker {
         );
         self.keyframe_poses[first..].copy_from_slice(&ba.poses);
         for (i, &id) in point_ids.iter().enumerate() {
-            self.landmarks[id].p = ba.points[i];
+            if let Some(lm) = self.landmarks.get_mut(&id) {
+                lm.p = ba.points[i];
+            }
         }
         if let Some(kf) = self.keyframe.as_mut() {
             (kf.r, kf.t) = self.keyframe_poses[kf.id];
@@ -401,6 +409,17 @@ impl Tracker {
         });
         self.frames_since_keyframe = 0;
         self.local_ba();
+        self.prune_map();
+    }
+
+    /// Drops landmarks that no keyframe of the local window observes: tracking matches only
+    /// the current keyframe's landmarks and the local BA only the window's, so they cannot
+    /// be used again.
+    fn prune_map(&mut self) {
+        let n = self.keyframe_poses.len();
+        let keep_from = n.saturating_sub(self.cfg.local_ba_window.max(1));
+        self.landmarks
+            .retain(|_, lm| lm.obs.iter().any(|(k, _)| *k >= keep_from));
     }
 
     fn initialise(&mut self, input: &FrameMeta, cur: Features, m: Option<&Matches>) -> FrameOutput {
@@ -530,7 +549,7 @@ impl Tracker {
             .collect();
         let pw: Vec<Vec3> = with_lm
             .iter()
-            .map(|&(_, _, id)| self.landmarks[id].p)
+            .map(|(_, _, id)| self.landmarks[id].p)
             .collect();
         let bw: Vec<Vec3> = with_lm
             .iter()
@@ -591,7 +610,9 @@ impl Tracker {
             // observation still reprojects within the threshold
             let obs_b = bearing(&self.calib, &cur.keypoints[b]);
             let poses = &self.keyframe_poses;
-            let lm = &mut self.landmarks[id];
+            let Some(lm) = self.landmarks.get_mut(&id) else {
+                continue;
+            };
             lm.obs.push((cur_id, obs_b));
             let views: Vec<(Mat3, Vec3, Vec3)> = lm
                 .obs
