@@ -4,8 +4,10 @@
 use crate::common::{stamp, StageArgs, StageContext};
 use crate::inbox::Inbox;
 use anyhow::Result;
+use supermvo_config::{Frontend, PipelineConfig};
 use supermvo_dataset::GrayImage;
 use supermvo_inference::models;
+use supermvo_inference::orb::{Orb, OrbConfig};
 use supermvo_inference::xfeat::{XFeat, XFeatConfig};
 use supermvo_inference::Extractor;
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
@@ -13,22 +15,28 @@ use supermvo_messages::iceoryx2::prelude::*;
 use supermvo_messages::{now_ns, FeatureLayout, MessageError, StageKind, Status, Topic, HISTORY};
 
 /// The extractor the daemon and `supermvo run --mode inprocess` both use.
-pub fn extractor(top_k: usize, threads: usize) -> Result<XFeat> {
-    Ok(XFeat::new(
-        &models::model_path("xfeat"),
-        XFeatConfig {
-            top_k,
-            threads,
+pub fn extractor(cfg: &PipelineConfig) -> Result<Box<dyn Extractor + Send>> {
+    Ok(match cfg.frontend {
+        Frontend::XfeatLighterglue => Box::new(XFeat::new(
+            &models::model_path("xfeat"),
+            XFeatConfig {
+                top_k: cfg.top_k,
+                threads: cfg.threads,
+                ..Default::default()
+            },
+        )?),
+        Frontend::Orb => Box::new(Orb::new(OrbConfig {
+            top_k: cfg.top_k,
             ..Default::default()
-        },
-    )?)
+        })),
+    })
 }
 
 /// Runs one features worker until SIGTERM.
 pub fn run(args: &StageArgs) -> Result<()> {
     let cfg = args.load_config()?.pipeline;
     let workers = cfg.features_workers as u64;
-    let mut xfeat = extractor(cfg.top_k, cfg.threads)?;
+    let mut xfeat = extractor(&cfg)?;
     let mut ctx = StageContext::new(StageKind::Features, args.worker, &cfg)?;
     let frames = ctx
         .services

@@ -9,7 +9,9 @@ use crate::inbox::Inbox;
 use anyhow::Result;
 use std::collections::BTreeMap;
 use std::time::Duration;
+use supermvo_config::{Frontend, PipelineConfig};
 use supermvo_inference::lighterglue::{LightGlue, LightGlueConfig};
+use supermvo_inference::orb::OrbMatcher;
 use supermvo_inference::{models, Features, Matcher};
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
 use supermvo_messages::iceoryx2::prelude::*;
@@ -19,15 +21,18 @@ use supermvo_messages::{
 };
 
 /// The matcher the daemon and `supermvo run --mode inprocess` both use.
-pub fn matcher(threads: usize) -> Result<LightGlue> {
-    Ok(LightGlue::new(
-        &models::model_path("lighterglue"),
-        "lighterglue",
-        LightGlueConfig {
-            threads,
-            ..Default::default()
-        },
-    )?)
+pub fn matcher(cfg: &PipelineConfig) -> Result<Box<dyn Matcher + Send>> {
+    Ok(match cfg.frontend {
+        Frontend::XfeatLighterglue => Box::new(LightGlue::new(
+            &models::model_path("lighterglue"),
+            "lighterglue",
+            LightGlueConfig {
+                threads: cfg.threads,
+                ..Default::default()
+            },
+        )?),
+        Frontend::Orb => Box::new(OrbMatcher::default()),
+    })
 }
 
 type MatchPublisher = supermvo_messages::iceoryx2::port::publisher::Publisher<
@@ -52,7 +57,7 @@ fn send(p: &MatchPublisher, mut h: FrameHeader, entries: &[MatchEntry]) -> Resul
 /// Runs the matching stage until SIGTERM.
 pub fn run(args: &StageArgs) -> Result<()> {
     let cfg = args.load_config()?.pipeline;
-    let mut lg = matcher(cfg.threads)?;
+    let mut lg = matcher(&cfg)?;
     let mut ctx = StageContext::new(StageKind::Matching, args.worker, &cfg)?;
     let features = ctx
         .services

@@ -60,6 +60,17 @@ pub enum IngestMode {
     Realtime,
 }
 
+/// Keypoint extractor and matcher.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Frontend {
+    /// XFeat keypoints, LighterGlue matching (ONNX Runtime).
+    #[serde(rename = "xfeat-lighterglue")]
+    XfeatLighterglue,
+    /// ORB keypoints, brute-force Hamming matching.
+    #[serde(rename = "orb")]
+    Orb,
+}
+
 /// `[pipeline]`: the VO pipeline, in process or as the multi-process daemon.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -72,6 +83,9 @@ pub struct PipelineConfig {
     /// Real-time replay speed factor: 1.0 replays at the dataset's own rate (10 Hz for KITTI,
     /// from times.txt), 2.0 twice as fast. (0, 100].
     pub speed: f64,
+    /// Front end: "xfeat-lighterglue" (learned, the default) or "orb" (the classical
+    /// baseline: ORB keypoints, brute-force Hamming matching).
+    pub frontend: Frontend,
     /// Keypoints per frame, [64, 8192].
     pub top_k: usize,
     /// ONNX Runtime intra-op threads per network, [1, 64].
@@ -104,6 +118,7 @@ impl Default for PipelineConfig {
         Self {
             name: "supermvo".into(),
             mode: IngestMode::Lossless,
+            frontend: Frontend::XfeatLighterglue,
             speed: 1.0,
             top_k: 1024,
             threads: 2,

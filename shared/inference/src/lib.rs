@@ -12,6 +12,7 @@
 mod error;
 pub mod lighterglue;
 pub mod models;
+pub mod orb;
 pub mod runtime;
 pub mod xfeat;
 

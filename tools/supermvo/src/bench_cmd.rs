@@ -48,6 +48,9 @@ enum BenchCommand {
         /// Write per-pair rows (seq, frame, matches, inliers) as CSV here.
         #[arg(long)]
         csv: Option<PathBuf>,
+        /// Front end: xfeat-lighterglue or orb.
+        #[arg(long, default_value = "xfeat-lighterglue")]
+        frontend: String,
     },
     /// XFeat extraction and LighterGlue matching on two consecutive frames.
     Frontend {
@@ -110,10 +113,11 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             threshold_px,
             confidence,
             csv,
+            frontend,
         } => {
             return matching(
                 sequences,
-                *top_k,
+                (frontend, *top_k),
                 *threshold_px,
                 *confidence,
                 csv.as_deref(),
@@ -190,7 +194,7 @@ fn median(v: &mut [f64]) -> f64 {
 /// per sequence (median and mean of matches, inliers, inlier ratio).
 fn matching(
     sequences: &[PathBuf],
-    top_k: usize,
+    (frontend, top_k): (&str, usize),
     threshold_px: f64,
     confidence: f64,
     csv: Option<&std::path::Path>,
@@ -198,18 +202,32 @@ fn matching(
     use supermvo_dataset::KittiSequence;
     use supermvo_geometry::essential::{find_essential, RansacConfig};
     use supermvo_geometry::Vec3;
-    let mut xfeat = XFeat::new(
-        &models::model_path("xfeat"),
-        XFeatConfig {
-            top_k,
-            ..Default::default()
-        },
-    )?;
-    let mut lg = LightGlue::new(
-        &models::model_path("lighterglue"),
-        "lighterglue",
-        LightGlueConfig::default(),
-    )?;
+    let (mut xfeat, mut lg): (Box<dyn Extractor>, Box<dyn Matcher>) = match frontend {
+        "xfeat-lighterglue" => (
+            Box::new(XFeat::new(
+                &models::model_path("xfeat"),
+                XFeatConfig {
+                    top_k,
+                    ..Default::default()
+                },
+            )?),
+            Box::new(LightGlue::new(
+                &models::model_path("lighterglue"),
+                "lighterglue",
+                LightGlueConfig::default(),
+            )?),
+        ),
+        "orb" => (
+            Box::new(supermvo_inference::orb::Orb::new(
+                supermvo_inference::orb::OrbConfig {
+                    top_k,
+                    ..Default::default()
+                },
+            )),
+            Box::new(supermvo_inference::orb::OrbMatcher::default()),
+        ),
+        other => bail!("unknown front end '{other}'; use xfeat-lighterglue or orb"),
+    };
     let ransac = RansacConfig {
         threshold_px,
         confidence,

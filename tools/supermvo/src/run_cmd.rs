@@ -41,9 +41,9 @@ pub struct RunArgs {
     /// Configuration file (see config/default.toml); the options below override it.
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Front end (only xfeat-lighterglue is built so far).
-    #[arg(long, default_value = "xfeat-lighterglue")]
-    frontend: String,
+    /// Front end: xfeat-lighterglue (learned) or orb (classical baseline) [pipeline.frontend].
+    #[arg(long)]
+    frontend: Option<String>,
     /// Keypoints per frame [config: pipeline.top_k].
     #[arg(long)]
     top_k: Option<usize>,
@@ -97,6 +97,15 @@ impl RunArgs {
         if let Some(v) = self.loops {
             p.loops = v;
         }
+        if let Some(f) = &self.frontend {
+            p.frontend = match f.as_str() {
+                "xfeat-lighterglue" => supermvo_config::Frontend::XfeatLighterglue,
+                "orb" => supermvo_config::Frontend::Orb,
+                other => {
+                    bail!("front end '{other}' is not available; use xfeat-lighterglue or orb")
+                }
+            };
+        }
         if self.realtime {
             p.mode = IngestMode::Realtime;
         }
@@ -123,12 +132,6 @@ fn check_calibration(seq: &KittiSequence) -> Result<GrayImage> {
 
 /// Runs `supermvo run`.
 pub fn run(args: &RunArgs) -> Result<()> {
-    if args.frontend != "xfeat-lighterglue" {
-        bail!(
-            "front end '{}' is not available yet; use xfeat-lighterglue",
-            args.frontend
-        );
-    }
     let cfg = args.config()?;
     let seq = KittiSequence::open(&args.seq_dir)?;
     check_calibration(&seq)?;
@@ -198,8 +201,8 @@ fn run_inprocess(
     let p = &cfg.pipeline;
     let tracker = Tracker::new(seq.calib, tracking::tracker_config(p));
     let mut vo = Timed::new(VoPipeline::new(
-        Box::new(features::extractor(p.top_k, p.threads)?),
-        Box::new(matching::matcher(p.threads)?),
+        features::extractor(p)?,
+        matching::matcher(p)?,
         tracker,
     ));
     let first = GrayImage::load(&seq.images[0])?;

@@ -1,8 +1,11 @@
 //! The multi-process daemon end to end: real stage processes over real iceoryx2 shared memory.
+//! (Compiled as an integration test of `services`, which builds the stage binaries.)
 //!
 //! - lossless multi-process gives the in-process trajectory bit for bit (KITTI 03);
 //! - `kill -9` of each stage in turn mid-run: restarted, the run completes, every frame is
 //!   accounted for, nothing is left in shared memory;
+//! - a hung (stopped) stage is restarted after the deadline;
+//! - SIGINT/SIGTERM shut down cleanly with the trajectory written;
 //! - bad input: missing stage binaries, bad config, a second pipeline of the same name.
 //!
 //! The tests run one at a time (they watch the shared-memory directories).
@@ -117,8 +120,8 @@ fn multiprocess_lossless_equals_inprocess_bit_for_bit_on_kitti_03() {
     let seq = KittiSequence::open(&seq_dir).unwrap();
     let p = &opts.config.pipeline;
     let mut vo = VoPipeline::new(
-        Box::new(features::extractor(p.top_k, p.threads).unwrap()),
-        Box::new(matching::matcher(p.threads).unwrap()),
+        features::extractor(p).unwrap(),
+        matching::matcher(p).unwrap(),
         Tracker::new(seq.calib, tracking::tracker_config(p)),
     );
     let n = seq.images.len();
@@ -370,4 +373,43 @@ fn sigint_and_sigterm_shut_down_cleanly_with_the_trajectory_written() {
         );
         assert_eq!(ipc_files(), before, "{signal:?}: shared memory left behind");
     }
+}
+
+#[test]
+fn a_hung_stage_is_restarted_after_the_deadline() {
+    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(seq_dir) = shared_data("kitti/sequences/06") else {
+        return;
+    };
+    if !models_ready() {
+        return;
+    }
+    let before = ipc_files();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut opts = options("hang", &seq_dir, tmp.path(), 40);
+    opts.config.pipeline.deadline_ms = 2000;
+    let out = tmp.path().to_path_buf();
+    let handle = std::thread::spawn(move || supervisor::run(&opts));
+    let t0 = Instant::now();
+    while read_records(&out.join("frames.csv")).map_or(0, |r| r.len()) < 10 {
+        assert!(t0.elapsed() < Duration::from_secs(120));
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let text = std::fs::read_to_string(out.join("processes.json")).unwrap();
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let pid = v
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|p| p["stage"] == "features")
+        .unwrap()["pid"]
+        .as_i64()
+        .unwrap();
+    // a stopped process is alive but silent: only the deadline can catch it
+    kill(Pid::from_raw(pid as i32), Signal::SIGSTOP).unwrap();
+    let m = handle.join().unwrap().unwrap();
+    assert_eq!(m.restarts.len(), 1, "{:?}", m.restarts);
+    assert!(m.restarts[0].reason.contains("silent"), "{:?}", m.restarts);
+    assert_eq!(m.frames.values().sum::<usize>(), 40, "{:?}", m.frames);
+    assert_eq!(ipc_files(), before);
 }
