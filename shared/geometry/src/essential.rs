@@ -111,7 +111,12 @@ pub fn five_point(x1: &[Vec3; 5], x2: &[Vec3; 5]) -> Vec<Mat3> {
             }
         }
     }
-    let svd = q.svd(false, true);
+    if !q.iter().all(|v| v.is_finite()) {
+        return Vec::new();
+    }
+    let Some(svd) = q.try_svd(false, true, f64::EPSILON, 10_000) else {
+        return Vec::new();
+    };
     let Some(vt) = svd.v_t else { return Vec::new() };
     // singular values are sorted descending: the last four rows span the null space
     let mut order: Vec<usize> = (0..9).collect();
@@ -205,14 +210,25 @@ pub fn five_point(x1: &[Vec3; 5], x2: &[Vec3; 5]) -> Vec<Mat3> {
     a[(7, 1)] = 1.0; // x * y = xy
     a[(8, 2)] = 1.0; // x * z = xz
     a[(9, 6)] = 1.0; // x * 1 = x
+                     // nalgebra's plain eigen/SVD calls iterate without bound; a degenerate sample (e.g.
+                     // repeated points) can give a matrix on which they never converge, so bound both and
+                     // treat non-convergence as "no solution from this sample"
     let mut out = Vec::new();
-    for ev in a.complex_eigenvalues().iter() {
+    if !a.iter().all(|v| v.is_finite()) {
+        return out;
+    }
+    let Some(schur) = nalgebra::linalg::Schur::try_new(a, f64::EPSILON, 10_000) else {
+        return out;
+    };
+    for ev in schur.complex_eigenvalues().iter() {
         if ev.im.abs() > 1e-8 * (1.0 + ev.re.abs()) {
             continue;
         }
         let lambda = ev.re;
         let shifted = a - SMatrix::<f64, 10, 10>::identity() * lambda;
-        let s = shifted.svd(false, true);
+        let Some(s) = shifted.try_svd(false, true, f64::EPSILON, 10_000) else {
+            continue;
+        };
         let Some(vt) = s.v_t else { continue };
         let k = crate::argmin(s.singular_values.iter().copied());
         let v = vt.row(k);
@@ -609,6 +625,19 @@ pub fn recover_pose(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn degenerate_samples_return_promptly() {
+        // repeated and collinear correspondences (duplicate keypoints do reach RANSAC):
+        // no solution, or some, but no endless eigen-decomposition
+        let p = Vec3::new(0.1, -0.2, 1.0);
+        let same = [p; 5];
+        let _ = five_point(&same, &same);
+        let line: [Vec3; 5] = std::array::from_fn(|i| Vec3::new(0.1 * i as f64, 0.0, 1.0));
+        let _ = five_point(&line, &line);
+        let nan = [Vec3::new(f64::NAN, 0.0, 1.0); 5];
+        assert!(five_point(&nan, &same).is_empty());
+    }
     use crate::so3_exp;
     use proptest::prelude::*;
 
