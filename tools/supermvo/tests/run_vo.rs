@@ -96,3 +96,84 @@ fn bad_sequences_are_clear_errors() {
         &["principal point", "outside the 64x64 images"],
     );
 }
+
+/// A KITTI 00 excerpt with a black frame, a stretch without motion (one frame repeated) and a
+/// missing (unreadable) frame: the run finishes, every frame gets a logged state, and the
+/// poses estimated before the black frame are kept.
+#[test]
+fn black_frame_no_motion_and_unreadable_frame_are_states_not_failures() {
+    let Some(src) = common::shared_data("kitti/sequences/00") else {
+        return;
+    };
+    if !models_ready() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("sequences/00");
+    std::fs::create_dir_all(seq.join("image_0")).unwrap();
+    std::fs::copy(src.join("calib.txt"), seq.join("calib.txt")).unwrap();
+    // frames: 0..12 of 00, black, 12 repeated 5 times, unreadable, 13..20
+    let mut plan: Vec<Option<usize>> = (0..12).map(Some).collect();
+    plan.push(None); // black
+    plan.extend([Some(12); 5]);
+    plan.push(Some(usize::MAX)); // unreadable
+    plan.extend((13..20).map(Some));
+    let first = image::open(src.join("image_0/000000.png"))
+        .unwrap()
+        .to_luma8();
+    let mut times = String::new();
+    for (i, p) in plan.iter().enumerate() {
+        let dst = seq.join(format!("image_0/{i:06}.png"));
+        match p {
+            Some(usize::MAX) => std::fs::write(&dst, b"not a png").unwrap(),
+            Some(k) => {
+                std::fs::copy(src.join(format!("image_0/{k:06}.png")), &dst).unwrap();
+            }
+            None => image::GrayImage::new(first.width(), first.height())
+                .save(&dst)
+                .unwrap(),
+        }
+        times.push_str(&format!("{:.6}\n", i as f64 * 0.1));
+    }
+    std::fs::write(seq.join("times.txt"), times).unwrap();
+    let out = tmp.path().join("out");
+    let r = common::supermvo(&[
+        "run",
+        seq.to_str().unwrap(),
+        "--mode",
+        "inprocess",
+        "-q",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    assert!(
+        String::from_utf8_lossy(&r.stderr).contains("frame 18"),
+        "the unreadable frame is logged"
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let frames = report["frames_detail"].as_array().unwrap();
+    assert_eq!(
+        frames.len(),
+        plan.len() - 1,
+        "every readable frame has a state"
+    );
+    let state = |i: u64| {
+        frames
+            .iter()
+            .find(|f| f["index"] == i)
+            .map(|f| f["state"].as_str().unwrap().to_string())
+    };
+    // the black frame: no features, so not tracked
+    assert_ne!(state(12).as_deref(), Some("tracking"), "{frames:?}");
+    assert_eq!(state(18), None, "the unreadable frame is skipped");
+    // poses before the black frame are kept in the trajectory
+    let traj = std::fs::read_to_string(out.join("trajectory.tum.txt")).unwrap();
+    let posed_before = frames
+        .iter()
+        .filter(|f| f["index"].as_u64().unwrap() < 12 && !f["pose"].is_null())
+        .count();
+    assert!(posed_before >= 8, "{frames:?}");
+    assert!(traj.lines().count() >= posed_before);
+}
