@@ -59,6 +59,24 @@ fn models_ready() -> bool {
     ok
 }
 
+/// Serialises the tests (they watch the shared-memory directories) and finds their inputs:
+/// `None` (skip, printed) when the clip or the models are absent.
+fn setup(
+    clip: &str,
+    need_models: bool,
+) -> Option<(
+    std::sync::MutexGuard<'static, ()>,
+    PathBuf,
+    BTreeSet<String>,
+)> {
+    let guard = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let seq = shared_data(&format!("kitti/sequences/{clip}"))?;
+    if need_models && !models_ready() {
+        return None;
+    }
+    Some((guard, seq, ipc_files()))
+}
+
 fn bin_dir() -> PathBuf {
     Path::new(env!("CARGO_BIN_EXE_supermvo-ingest"))
         .parent()
@@ -103,14 +121,9 @@ fn options(name: &str, seq: &Path, out: &Path, max_frames: usize) -> SupervisorO
 
 #[test]
 fn multiprocess_lossless_equals_inprocess_bit_for_bit_on_kitti_03() {
-    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(seq_dir) = shared_data("kitti/sequences/03") else {
+    let Some((_g, seq_dir, before)) = setup("03", true) else {
         return;
     };
-    if !models_ready() {
-        return;
-    }
-    let before = ipc_files();
     let tmp = tempfile::tempdir().unwrap();
     let opts = options("parity", &seq_dir, tmp.path(), 0);
     let metrics = supervisor::run(&opts).unwrap();
@@ -155,14 +168,9 @@ fn multiprocess_lossless_equals_inprocess_bit_for_bit_on_kitti_03() {
 
 #[test]
 fn killed_stages_are_restarted_and_every_frame_is_accounted_for() {
-    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(seq_dir) = shared_data("kitti/sequences/00") else {
+    let Some((_g, seq_dir, before)) = setup("00", true) else {
         return;
     };
-    if !models_ready() {
-        return;
-    }
-    let before = ipc_files();
     let tmp = tempfile::tempdir().unwrap();
     let frames = 150;
     let mut opts = options("fault", &seq_dir, tmp.path(), frames);
@@ -234,11 +242,9 @@ fn killed_stages_are_restarted_and_every_frame_is_accounted_for() {
 
 #[test]
 fn missing_binaries_and_bad_config_start_nothing() {
-    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(seq_dir) = shared_data("kitti/sequences/06") else {
+    let Some((_g, seq_dir, before)) = setup("06", false) else {
         return;
     };
-    let before = ipc_files();
     let tmp = tempfile::tempdir().unwrap();
     let mut opts = options("bad", &seq_dir, &tmp.path().join("out"), 5);
     opts.bin_dir = tmp.path().join("no-binaries");
@@ -288,14 +294,9 @@ fn missing_binaries_and_bad_config_start_nothing() {
 
 #[test]
 fn a_second_pipeline_under_a_running_name_is_refused() {
-    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(seq_dir) = shared_data("kitti/sequences/06") else {
+    let Some((_g, seq_dir, before)) = setup("06", true) else {
         return;
     };
-    if !models_ready() {
-        return;
-    }
-    let before = ipc_files();
     let tmp = tempfile::tempdir().unwrap();
     let first = options("twice", &seq_dir, &tmp.path().join("a"), 20);
     let second = options("twice", &seq_dir, &tmp.path().join("b"), 20);
@@ -317,14 +318,9 @@ fn a_second_pipeline_under_a_running_name_is_refused() {
 
 #[test]
 fn sigint_and_sigterm_shut_down_cleanly_with_the_trajectory_written() {
-    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(seq_dir) = shared_data("kitti/sequences/00") else {
+    let Some((_g, seq_dir, before)) = setup("00", true) else {
         return;
     };
-    if !models_ready() {
-        return;
-    }
-    let before = ipc_files();
     for signal in [Signal::SIGINT, Signal::SIGTERM] {
         let tmp = tempfile::tempdir().unwrap();
         let cfg = tmp.path().join("c.toml");
@@ -377,14 +373,9 @@ fn sigint_and_sigterm_shut_down_cleanly_with_the_trajectory_written() {
 
 #[test]
 fn a_hung_stage_is_restarted_after_the_deadline() {
-    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(seq_dir) = shared_data("kitti/sequences/06") else {
+    let Some((_g, seq_dir, before)) = setup("06", true) else {
         return;
     };
-    if !models_ready() {
-        return;
-    }
-    let before = ipc_files();
     let tmp = tempfile::tempdir().unwrap();
     let mut opts = options("hang", &seq_dir, tmp.path(), 40);
     opts.config.pipeline.deadline_ms = 2000;

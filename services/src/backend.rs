@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 use supermvo_dataset::{write_trajectory, Trajectory, TrajectoryFormat};
 use supermvo_messages::{
-    now_ns, BackendState, FrameHeader, MessageError, PoseMsg, StageKind, Status, Topic, HISTORY,
+    now_ns, BackendState, FrameHeader, MessageError, PoseMsg, StageKind, Status, Topic,
 };
 
 /// One recorded frame.
@@ -232,13 +232,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
     let cfg = args.load_config()?.pipeline;
     let mut rec = Recorder::open(&args.out)?;
     let mut ctx = StageContext::new(StageKind::Backend, args.worker, &cfg)?;
-    let poses = ctx
-        .services
-        .header_topic::<PoseMsg>(&ctx.node, Topic::Poses, false)?
-        .subscriber_builder()
-        .history_request(HISTORY)
-        .create()
-        .map_err(|e| MessageError::ipc("poses subscriber", e))?;
+    let poses = ctx.header_subscriber::<PoseMsg>(Topic::Poses)?;
     let state = ctx
         .services
         .plain_topic::<BackendState>(&ctx.node, Topic::Backend, false)?

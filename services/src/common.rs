@@ -5,9 +5,11 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 use supermvo_config::{Config, PipelineConfig};
 use supermvo_messages::iceoryx2::port::publisher::Publisher;
+use supermvo_messages::iceoryx2::port::subscriber::Subscriber;
+use supermvo_messages::iceoryx2::prelude::ZeroCopySend;
 use supermvo_messages::{
-    create_node, now_ns, FrameHeader, Ipc, IpcNode, Progress, ProgressEvent, Services, StageKind,
-    Status, Topic,
+    create_node, now_ns, FrameHeader, Ipc, IpcNode, MessageError, Progress, ProgressEvent,
+    Services, StageKind, Status, Topic, HISTORY,
 };
 
 /// How long a stage sleeps between polls of its inputs.
@@ -111,6 +113,48 @@ impl StageContext {
         }
     }
 
+    /// A subscriber to a slice topic that first receives the topic's history (a restarted
+    /// stage picks up what was in flight).
+    pub fn slice_subscriber<P>(&self, topic: Topic) -> Result<Subscriber<Ipc, [P], FrameHeader>>
+    where
+        P: std::fmt::Debug + ZeroCopySend + 'static,
+    {
+        Ok(self
+            .services
+            .slice_topic::<P>(&self.node, topic, false)?
+            .subscriber_builder()
+            .history_request(HISTORY)
+            .create()
+            .map_err(|e| MessageError::ipc(format!("{} subscriber", topic.name()), e))?)
+    }
+
+    /// A subscriber to a fixed-size topic with headers, receiving its history first.
+    pub fn header_subscriber<P>(&self, topic: Topic) -> Result<Subscriber<Ipc, P, FrameHeader>>
+    where
+        P: std::fmt::Debug + ZeroCopySend + 'static,
+    {
+        Ok(self
+            .services
+            .header_topic::<P>(&self.node, topic, false)?
+            .subscriber_builder()
+            .history_request(HISTORY)
+            .create()
+            .map_err(|e| MessageError::ipc(format!("{} subscriber", topic.name()), e))?)
+    }
+
+    /// A subscriber to a header-less topic (its history is the last state).
+    pub fn plain_subscriber<P>(&self, topic: Topic) -> Result<Subscriber<Ipc, P, ()>>
+    where
+        P: std::fmt::Debug + ZeroCopySend + 'static,
+    {
+        Ok(self
+            .services
+            .plain_topic::<P>(&self.node, topic, false)?
+            .subscriber_builder()
+            .create()
+            .map_err(|e| MessageError::ipc(format!("{} subscriber", topic.name()), e))?)
+    }
+
     /// Says the stage is up.
     pub fn started(&mut self) {
         let p = self.base(ProgressEvent::Started);
@@ -179,4 +223,48 @@ pub fn main_with<F: FnOnce() -> Result<()>>(stage: &str, run: F) -> std::process
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+/// The `main` of a stage binary: parse the stage arguments, run `$stage::run`, report an
+/// error in one line. Each stage binary is this one line.
+#[macro_export]
+macro_rules! stage_main {
+    ($stage:ident) => {
+        #[doc = concat!("SuPerMVO ", stringify!($stage), " stage process.")]
+        #[derive(Debug, clap::Parser)]
+        #[command(
+            version,
+            about = concat!("SuPerMVO ", stringify!($stage), " stage process; started by the supervisor.")
+        )]
+        struct Cli {
+            #[command(flatten)]
+            args: $crate::common::StageArgs,
+        }
+
+        fn main() -> std::process::ExitCode {
+            let cli = <Cli as clap::Parser>::parse();
+            $crate::common::main_with(stringify!($stage), || $crate::$stage::run(&cli.args))
+        }
+    };
+}
+
+/// Moves every features message waiting on `sub` into `inbox` (payload copied out of shared
+/// memory: the stage keeps them beyond the sample's life).
+pub fn receive_features(
+    sub: &Subscriber<Ipc, [f32], FrameHeader>,
+    inbox: &mut crate::inbox::Inbox<Option<supermvo_inference::Features>>,
+) -> Result<()> {
+    while let Some(s) = sub
+        .receive()
+        .map_err(|e| MessageError::ipc("features", e))?
+    {
+        let h = *s.user_header();
+        h.check()?;
+        let f = match h.status() {
+            Status::Ok => Some(supermvo_messages::FeatureLayout::read(&h, s.payload())?),
+            _ => None,
+        };
+        inbox.insert(h, f, now_ns());
+    }
+    Ok(())
 }

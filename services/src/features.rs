@@ -12,7 +12,7 @@ use supermvo_inference::xfeat::{XFeat, XFeatConfig};
 use supermvo_inference::Extractor;
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
 use supermvo_messages::iceoryx2::prelude::*;
-use supermvo_messages::{now_ns, FeatureLayout, MessageError, StageKind, Status, Topic, HISTORY};
+use supermvo_messages::{now_ns, FeatureLayout, MessageError, StageKind, Status, Topic};
 
 /// The extractor the daemon and `supermvo run --mode inprocess` both use.
 pub fn extractor(cfg: &PipelineConfig) -> Result<Box<dyn Extractor + Send>> {
@@ -38,13 +38,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
     let workers = cfg.features_workers as u64;
     let mut xfeat = extractor(&cfg)?;
     let mut ctx = StageContext::new(StageKind::Features, args.worker, &cfg)?;
-    let frames = ctx
-        .services
-        .slice_topic::<u8>(&ctx.node, Topic::Frames, false)?
-        .subscriber_builder()
-        .history_request(HISTORY)
-        .create()
-        .map_err(|e| MessageError::ipc("frames subscriber", e))?;
+    let frames = ctx.slice_subscriber::<u8>(Topic::Frames)?;
     let publisher = ctx
         .services
         .slice_topic::<f32>(&ctx.node, Topic::Features, false)?

@@ -86,18 +86,8 @@ pub fn run(args: &StageArgs) -> Result<()> {
         .max_loaned_samples(2)
         .create()
         .map_err(|e| MessageError::ipc("frames publisher", e))?;
-    let poses = ctx
-        .services
-        .header_topic::<PoseMsg>(&ctx.node, Topic::Poses, false)?
-        .subscriber_builder()
-        .create()
-        .map_err(|e| MessageError::ipc("poses subscriber", e))?;
-    let backend = ctx
-        .services
-        .plain_topic::<BackendState>(&ctx.node, Topic::Backend, false)?
-        .subscriber_builder()
-        .create()
-        .map_err(|e| MessageError::ipc("backend subscriber", e))?;
+    let poses = ctx.header_subscriber::<PoseMsg>(Topic::Poses)?;
+    let backend = ctx.plain_subscriber::<BackendState>(Topic::Backend)?;
 
     // where to start: after the last frame the pipeline finished (restart), else at 0
     let mut done: Option<u64> = None;

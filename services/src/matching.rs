@@ -4,7 +4,7 @@
 //! the `poses` service; so matching of frame `s` waits for the tracker's result of `s - 1`.
 //! Features are kept by sequence number until they can no longer become or be the reference.
 
-use crate::common::{stamp, StageArgs, StageContext};
+use crate::common::{receive_features, stamp, StageArgs, StageContext};
 use crate::inbox::Inbox;
 use anyhow::Result;
 use std::collections::BTreeMap;
@@ -16,8 +16,7 @@ use supermvo_inference::{models, Features, Matcher};
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
 use supermvo_messages::iceoryx2::prelude::*;
 use supermvo_messages::{
-    now_ns, FeatureLayout, FrameHeader, MatchEntry, MessageError, PoseMsg, StageKind, Status,
-    Topic, HISTORY,
+    now_ns, FrameHeader, MatchEntry, MessageError, PoseMsg, StageKind, Status, Topic,
 };
 
 /// The matcher the daemon and `supermvo run --mode inprocess` both use.
@@ -59,20 +58,8 @@ pub fn run(args: &StageArgs) -> Result<()> {
     let cfg = args.load_config()?.pipeline;
     let mut lg = matcher(&cfg)?;
     let mut ctx = StageContext::new(StageKind::Matching, args.worker, &cfg)?;
-    let features = ctx
-        .services
-        .slice_topic::<f32>(&ctx.node, Topic::Features, false)?
-        .subscriber_builder()
-        .history_request(HISTORY)
-        .create()
-        .map_err(|e| MessageError::ipc("features subscriber", e))?;
-    let poses = ctx
-        .services
-        .header_topic::<PoseMsg>(&ctx.node, Topic::Poses, false)?
-        .subscriber_builder()
-        .history_request(HISTORY)
-        .create()
-        .map_err(|e| MessageError::ipc("poses subscriber", e))?;
+    let features = ctx.slice_subscriber::<f32>(Topic::Features)?;
+    let poses = ctx.header_subscriber::<PoseMsg>(Topic::Poses)?;
     let publisher = ctx
         .services
         .slice_topic::<MatchEntry>(&ctx.node, Topic::Matches, false)?
@@ -101,18 +88,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
     ctx.started();
     while ctx.wait() {
         drain_poses(&mut refs)?;
-        while let Some(s) = features
-            .receive()
-            .map_err(|e| MessageError::ipc("features", e))?
-        {
-            let h = *s.user_header();
-            h.check()?;
-            let f = match h.status() {
-                Status::Ok => Some(FeatureLayout::read(&h, s.payload())?),
-                _ => None,
-            };
-            inbox.insert(h, f, now_ns());
-        }
+        receive_features(&features, &mut inbox)?;
         let _ = publisher.update_connections();
         loop {
             let next = inbox.next();

@@ -3,7 +3,7 @@
 //!
 //! A restarted tracker continues from the back end's last recorded pose and map scale.
 
-use crate::common::{stamp, StageArgs, StageContext};
+use crate::common::{receive_features, stamp, StageArgs, StageContext};
 use crate::inbox::Inbox;
 use anyhow::Result;
 use std::time::Duration;
@@ -14,8 +14,7 @@ use supermvo_inference::{Features, Matches};
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
 use supermvo_messages::iceoryx2::prelude::*;
 use supermvo_messages::{
-    now_ns, BackendState, FeatureLayout, FrameHeader, MessageError, PoseMsg, StageKind, Status,
-    Topic, HISTORY,
+    now_ns, BackendState, FrameHeader, MessageError, PoseMsg, StageKind, Status, Topic,
 };
 use supermvo_vo::tracker::{FrameMeta, FrameOutput, Tracker, TrackerConfig, TrackingState};
 
@@ -61,26 +60,9 @@ pub fn run(args: &StageArgs) -> Result<()> {
     let seq = KittiSequence::open(&args.seq)?;
     let mut tracker = Tracker::new(seq.calib, tracker_config(&cfg));
     let mut ctx = StageContext::new(StageKind::Tracking, args.worker, &cfg)?;
-    let features = ctx
-        .services
-        .slice_topic::<f32>(&ctx.node, Topic::Features, false)?
-        .subscriber_builder()
-        .history_request(HISTORY)
-        .create()
-        .map_err(|e| MessageError::ipc("features subscriber", e))?;
-    let matches = ctx
-        .services
-        .slice_topic::<MatchEntry>(&ctx.node, Topic::Matches, false)?
-        .subscriber_builder()
-        .history_request(HISTORY)
-        .create()
-        .map_err(|e| MessageError::ipc("matches subscriber", e))?;
-    let backend = ctx
-        .services
-        .plain_topic::<BackendState>(&ctx.node, Topic::Backend, false)?
-        .subscriber_builder()
-        .create()
-        .map_err(|e| MessageError::ipc("backend subscriber", e))?;
+    let features = ctx.slice_subscriber::<f32>(Topic::Features)?;
+    let matches = ctx.slice_subscriber::<MatchEntry>(Topic::Matches)?;
+    let backend = ctx.plain_subscriber::<BackendState>(Topic::Backend)?;
     let publisher = ctx
         .services
         .header_topic::<PoseMsg>(&ctx.node, Topic::Poses, false)?
@@ -112,18 +94,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
     let gap = Duration::from_millis(cfg.gap_timeout_ms);
     ctx.started();
     while ctx.wait() {
-        while let Some(s) = features
-            .receive()
-            .map_err(|e| MessageError::ipc("features", e))?
-        {
-            let h = *s.user_header();
-            h.check()?;
-            let f = match h.status() {
-                Status::Ok => Some(FeatureLayout::read(&h, s.payload())?),
-                _ => None,
-            };
-            feats.insert(h, f, now_ns());
-        }
+        receive_features(&features, &mut feats)?;
         while let Some(s) = matches
             .receive()
             .map_err(|e| MessageError::ipc("matches", e))?

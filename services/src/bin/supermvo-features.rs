@@ -1,17 +1,3 @@
-//! The features stage process (see `supermvo_services::features`).
+//! The features stage process (see `supermvo_services::features`); started by the supervisor.
 
-use clap::Parser;
-use supermvo_services::common::{main_with, StageArgs};
-
-/// SuPerMVO features stage; started by the supervisor.
-#[derive(Debug, Parser)]
-#[command(version)]
-struct Cli {
-    #[command(flatten)]
-    args: StageArgs,
-}
-
-fn main() -> std::process::ExitCode {
-    let cli = Cli::parse();
-    main_with("features", || supermvo_services::features::run(&cli.args))
-}
+supermvo_services::stage_main!(features);

@@ -1,17 +1,3 @@
-//! The ingest stage process (see `supermvo_services::ingest`).
+//! The ingest stage process (see `supermvo_services::ingest`); started by the supervisor.
 
-use clap::Parser;
-use supermvo_services::common::{main_with, StageArgs};
-
-/// SuPerMVO ingest stage; started by the supervisor.
-#[derive(Debug, Parser)]
-#[command(version)]
-struct Cli {
-    #[command(flatten)]
-    args: StageArgs,
-}
-
-fn main() -> std::process::ExitCode {
-    let cli = Cli::parse();
-    main_with("ingest", || supermvo_services::ingest::run(&cli.args))
-}
+supermvo_services::stage_main!(ingest);

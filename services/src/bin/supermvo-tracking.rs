@@ -1,17 +1,3 @@
-//! The tracking stage process (see `supermvo_services::tracking`).
+//! The tracking stage process (see `supermvo_services::tracking`); started by the supervisor.
 
-use clap::Parser;
-use supermvo_services::common::{main_with, StageArgs};
-
-/// SuPerMVO tracking stage; started by the supervisor.
-#[derive(Debug, Parser)]
-#[command(version)]
-struct Cli {
-    #[command(flatten)]
-    args: StageArgs,
-}
-
-fn main() -> std::process::ExitCode {
-    let cli = Cli::parse();
-    main_with("tracking", || supermvo_services::tracking::run(&cli.args))
-}
+supermvo_services::stage_main!(tracking);

@@ -466,6 +466,25 @@ struct Qos {
     safe_overflow: bool,
 }
 
+type PubSubBuilder<P, H> = iceoryx2::service::builder::publish_subscribe::Builder<P, H, Ipc>;
+
+impl Qos {
+    /// The settings every topic shares, with this topic's history, buffer and overflow.
+    fn apply<P, H>(self, b: PubSubBuilder<P, H>) -> PubSubBuilder<P, H>
+    where
+        P: std::fmt::Debug + IceoryxSend + ?Sized,
+        H: std::fmt::Debug + ZeroCopySend,
+    {
+        b.history_size(self.history)
+            .subscriber_max_buffer_size(self.buffer)
+            .subscriber_max_borrowed_samples(4)
+            .enable_safe_overflow(self.safe_overflow)
+            .max_publishers(16)
+            .max_subscribers(16)
+            .max_nodes(32)
+    }
+}
+
 impl Services {
     /// The services of pipeline `name`.
     pub fn new(pipeline: &str) -> Self {
@@ -524,17 +543,11 @@ impl Services {
         P: std::fmt::Debug + ZeroCopySend + 'static,
     {
         let q = Self::qos(topic);
-        let b = node
-            .service_builder(&self.service_name(topic)?)
-            .publish_subscribe::<[P]>()
-            .user_header::<FrameHeader>()
-            .history_size(q.history)
-            .subscriber_max_buffer_size(q.buffer)
-            .subscriber_max_borrowed_samples(4)
-            .enable_safe_overflow(q.safe_overflow)
-            .max_publishers(8)
-            .max_subscribers(16)
-            .max_nodes(32);
+        let b = q.apply(
+            node.service_builder(&self.service_name(topic)?)
+                .publish_subscribe::<[P]>()
+                .user_header::<FrameHeader>(),
+        );
         if create {
             b.open_or_create().map_err(|e| self.open_error(topic, e))
         } else {
@@ -553,17 +566,11 @@ impl Services {
         P: std::fmt::Debug + ZeroCopySend + 'static,
     {
         let q = Self::qos(topic);
-        let b = node
-            .service_builder(&self.service_name(topic)?)
-            .publish_subscribe::<P>()
-            .user_header::<FrameHeader>()
-            .history_size(q.history)
-            .subscriber_max_buffer_size(q.buffer)
-            .subscriber_max_borrowed_samples(4)
-            .enable_safe_overflow(q.safe_overflow)
-            .max_publishers(8)
-            .max_subscribers(16)
-            .max_nodes(32);
+        let b = q.apply(
+            node.service_builder(&self.service_name(topic)?)
+                .publish_subscribe::<P>()
+                .user_header::<FrameHeader>(),
+        );
         if create {
             b.open_or_create().map_err(|e| self.open_error(topic, e))
         } else {
@@ -582,15 +589,10 @@ impl Services {
         P: std::fmt::Debug + ZeroCopySend + 'static,
     {
         let q = Self::qos(topic);
-        let b = node
-            .service_builder(&self.service_name(topic)?)
-            .publish_subscribe::<P>()
-            .history_size(q.history)
-            .subscriber_max_buffer_size(q.buffer)
-            .enable_safe_overflow(q.safe_overflow)
-            .max_publishers(16)
-            .max_subscribers(16)
-            .max_nodes(32);
+        let b = q.apply(
+            node.service_builder(&self.service_name(topic)?)
+                .publish_subscribe::<P>(),
+        );
         if create {
             b.open_or_create().map_err(|e| self.open_error(topic, e))
         } else {
