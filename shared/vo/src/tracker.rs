@@ -422,6 +422,27 @@ impl Tracker {
             .retain(|_, lm| lm.obs.iter().any(|(k, _)| *k >= keep_from));
     }
 
+    /// Not enough for the two-view initialisation yet: the reference stays, this frame has no
+    /// pose.
+    fn not_yet(
+        &mut self,
+        input: &FrameMeta,
+        kf: Keyframe,
+        keypoints: usize,
+        counts: (usize, usize),
+    ) -> FrameOutput {
+        let out = self.output(
+            input,
+            TrackingState::Initializing,
+            None,
+            keypoints,
+            counts,
+            false,
+        );
+        self.keyframe = Some(kf);
+        out
+    }
+
     fn initialise(&mut self, input: &FrameMeta, cur: Features, m: Option<&Matches>) -> FrameOutput {
         let Some(kf) = self.keyframe.take() else {
             // first frame (or first after a loss): becomes the reference at the last pose
@@ -452,16 +473,7 @@ impl Tracker {
         disp.sort_by(f64::total_cmp);
         let parallax = disp.get(disp.len() / 2).copied().unwrap_or(0.0);
         if parallax < self.cfg.min_parallax_px || m.pairs.len() < self.cfg.min_init_landmarks {
-            let out = self.output(
-                input,
-                TrackingState::Initializing,
-                None,
-                cur.len(),
-                (m.pairs.len(), 0),
-                false,
-            );
-            self.keyframe = Some(kf);
-            return out;
+            return self.not_yet(input, kf, cur.len(), (m.pairs.len(), 0));
         }
         let x1: Vec<Vec3> = m
             .pairs
@@ -474,16 +486,7 @@ impl Tracker {
             .map(|&(_, b)| bearing(&self.calib, &cur.keypoints[b]))
             .collect();
         let Some(est) = find_essential(&x1, &x2, self.focal(), &self.cfg.ransac) else {
-            let out = self.output(
-                input,
-                TrackingState::Initializing,
-                None,
-                cur.len(),
-                (m.pairs.len(), 0),
-                false,
-            );
-            self.keyframe = Some(kf);
-            return out;
+            return self.not_yet(input, kf, cur.len(), (m.pairs.len(), 0));
         };
         let (r_rel, t_rel, _) = recover_pose(&est.e, &x1, &x2, &est.inliers, 1e3);
         // scale: unit baseline at the first initialisation; afterwards keep the map's scale
@@ -499,16 +502,7 @@ impl Tracker {
         let unit =
             self.triangulate_pairs(identity, &kf.features.keypoints, &cur, &r_rel, &t_rel, &inl);
         if unit.len() < self.cfg.min_init_landmarks {
-            let out = self.output(
-                input,
-                TrackingState::Initializing,
-                None,
-                cur.len(),
-                (m.pairs.len(), unit.len()),
-                false,
-            );
-            self.keyframe = Some(kf);
-            return out;
+            return self.not_yet(input, kf, cur.len(), (m.pairs.len(), unit.len()));
         }
         let mut depths: Vec<f64> = unit.iter().map(|(_, _, p)| p.z).collect();
         depths.sort_by(f64::total_cmp);
