@@ -13,7 +13,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 use supermvo_messages::iceoryx2::prelude::*;
-use supermvo_messages::{create_node, now_ns, FrameHeader, Ipc, MessageError, Status};
+use supermvo_messages::{create_node, now_ns, FrameHeader, Ipc, IpcNode, MessageError, Status};
 
 /// Percentiles of one kind of hop, microseconds.
 #[derive(Debug, Clone, serde::Serialize)]
@@ -85,8 +85,6 @@ fn open_ack(
         .open_or_create()
         .map_err(|e| MessageError::ipc("bench ack service", e).into())
 }
-
-use supermvo_messages::IpcNode;
 
 /// The receiving side (`supermvo bench ipc-echo`): answers every message with its latency
 /// in nanoseconds until the sender says stop (an empty message).

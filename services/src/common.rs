@@ -198,9 +198,20 @@ pub fn stamp(h: &mut FrameHeader, stage: StageKind) {
     h.t_ns[stage as usize] = now_ns();
 }
 
-/// Whether a status carries a payload.
-pub fn has_payload(h: &FrameHeader) -> bool {
-    h.status() == Status::Ok
+/// Sends `data` (copied into a loaned sample; empty for a status-only message) with header
+/// `h` on a slice topic.
+pub fn send_slice<P>(p: &Publisher<Ipc, [P], FrameHeader>, h: FrameHeader, data: &[P]) -> Result<()>
+where
+    P: std::fmt::Debug + ZeroCopySend + Copy + 'static,
+{
+    let s = p
+        .loan_slice_uninit(data.len())
+        .map_err(|e| MessageError::ipc("loaning a sample", e))?;
+    let mut s = s.write_from_slice(data);
+    *s.user_header_mut() = h;
+    s.send()
+        .map_err(|e| MessageError::ipc("sending a sample", e))?;
+    Ok(())
 }
 
 /// Logging to stderr for a stage process (`RUST_LOG` overrides the level).

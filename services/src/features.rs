@@ -1,7 +1,7 @@
 //! Features: XFeat keypoints and descriptors of every frame (worker `k` of `N` takes the
 //! frames with `seq % N == k`), written in place into the `features` service.
 
-use crate::common::{stamp, StageArgs, StageContext};
+use crate::common::{send_slice, stamp, StageArgs, StageContext};
 use crate::inbox::Inbox;
 use anyhow::Result;
 use supermvo_config::{Frontend, PipelineConfig};
@@ -36,7 +36,7 @@ pub fn extractor(cfg: &PipelineConfig) -> Result<Box<dyn Extractor + Send>> {
 pub fn run(args: &StageArgs) -> Result<()> {
     let cfg = args.load_config()?.pipeline;
     let workers = cfg.features_workers as u64;
-    let mut xfeat = extractor(&cfg)?;
+    let mut extractor = extractor(&cfg)?;
     let mut ctx = StageContext::new(StageKind::Features, args.worker, &cfg)?;
     let frames = ctx.slice_subscriber::<u8>(Topic::Frames)?;
     let publisher = ctx
@@ -82,7 +82,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
             let t_in = now_ns();
             let status = match (&image, h_in.status()) {
                 (Some(img), Status::Ok) => {
-                    let f = xfeat.extract(img)?;
+                    let f = extractor.extract(img)?;
                     if cfg.features_extra_latency_ms > 0 {
                         std::thread::sleep(std::time::Duration::from_millis(
                             cfg.features_extra_latency_ms,
@@ -110,12 +110,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
             };
             let mut h = h_in.forward(status);
             stamp(&mut h, StageKind::Features);
-            let mut s = publisher
-                .loan_slice(0)
-                .map_err(|e| MessageError::ipc("loaning a features sample", e))?;
-            *s.user_header_mut() = h;
-            s.send()
-                .map_err(|e| MessageError::ipc("sending features", e))?;
+            send_slice(&publisher, h, &[])?;
             ctx.frame_done(&h, t_in, b.len());
             if status == Status::EndOfStream {
                 ctx.finished();

@@ -4,7 +4,7 @@
 //! ingest and tracking, so back-pressure replaces loss; in real-time mode at most
 //! [`REALTIME_IN_FLIGHT`], so latency stays bounded).
 
-use crate::common::{stamp, StageArgs, StageContext};
+use crate::common::{send_slice, stamp, StageArgs, StageContext};
 use anyhow::{bail, Result};
 use std::time::{Duration, Instant};
 use supermvo_config::IngestMode;
@@ -111,7 +111,6 @@ pub fn run(args: &StageArgs) -> Result<()> {
     let start = done.map_or(0, |d| d + 1);
     ctx.started();
 
-    let (_, stamp0) = replay.frame(0);
     let (_, stamp_start) = replay.frame(start);
     let t0 = Instant::now();
     let mut next = start;
@@ -132,7 +131,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
             // end of stream once every frame is through (so it stays in order)
             let mut h = FrameHeader::new(next, 0, 0.0, Status::EndOfStream);
             stamp(&mut h, StageKind::Ingest);
-            send_header_only(&frames, h)?;
+            send_slice(&frames, h, &[])?;
             ctx.frame_done(&h, h.t_ns[0], 0);
             next += 1;
             continue;
@@ -156,7 +155,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
                 if in_flight as usize >= REALTIME_IN_FLIGHT {
                     let mut h = FrameHeader::new(next, index as u64, t, Status::Dropped);
                     stamp(&mut h, StageKind::Ingest);
-                    send_header_only(&frames, h)?;
+                    send_slice(&frames, h, &[])?;
                     ctx.frame_done(&h, h.t_ns[0], in_flight as usize);
                     next += 1;
                     continue;
@@ -168,7 +167,6 @@ pub fn run(args: &StageArgs) -> Result<()> {
         ctx.frame_done(&h, t_in, in_flight as usize);
         next += 1;
     }
-    let _ = stamp0;
     Ok(())
 }
 
@@ -181,16 +179,6 @@ type FramePublisher = supermvo_messages::iceoryx2::port::publisher::Publisher<
 /// Lets a waiting publisher deliver its history to subscribers that (re)connected.
 fn publisher_keepalive(p: &FramePublisher) {
     let _ = p.update_connections();
-}
-
-fn send_header_only(p: &FramePublisher, h: FrameHeader) -> Result<()> {
-    let mut s = p
-        .loan_slice(0)
-        .map_err(|e| MessageError::ipc("loaning a frame sample", e))?;
-    *s.user_header_mut() = h;
-    s.send()
-        .map_err(|e| MessageError::ipc("sending a frame", e))?;
-    Ok(())
 }
 
 /// Loads frame `index` and publishes it as `seq` (or reports it unreadable).
@@ -222,20 +210,14 @@ fn publish_frame(
     let Some(image) = image else {
         let mut h = FrameHeader::new(next, index as u64, t, Status::Unreadable);
         stamp(&mut h, StageKind::Ingest);
-        send_header_only(p, h)?;
+        send_slice(p, h, &[])?;
         return Ok(h);
     };
-    let s = p
-        .loan_slice_uninit(image.data.len())
-        .map_err(|e| MessageError::ipc("loaning a frame sample", e))?;
-    let mut s = s.write_from_slice(&image.data);
     let mut h = FrameHeader::new(next, index as u64, t, Status::Ok);
     h.width = image.width as u32;
     h.height = image.height as u32;
     stamp(&mut h, StageKind::Ingest);
-    *s.user_header_mut() = h;
-    s.send()
-        .map_err(|e| MessageError::ipc("sending a frame", e))?;
+    send_slice(p, h, &image.data)?;
     Ok(h)
 }
 

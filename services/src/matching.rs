@@ -4,7 +4,7 @@
 //! the `poses` service; so matching of frame `s` waits for the tracker's result of `s - 1`.
 //! Features are kept by sequence number until they can no longer become or be the reference.
 
-use crate::common::{receive_features, stamp, StageArgs, StageContext};
+use crate::common::{receive_features, send_slice, stamp, StageArgs, StageContext};
 use crate::inbox::Inbox;
 use anyhow::Result;
 use std::collections::BTreeMap;
@@ -42,21 +42,15 @@ type MatchPublisher = supermvo_messages::iceoryx2::port::publisher::Publisher<
 
 fn send(p: &MatchPublisher, mut h: FrameHeader, entries: &[MatchEntry]) -> Result<FrameHeader> {
     stamp(&mut h, StageKind::Matching);
-    let s = p
-        .loan_slice_uninit(entries.len())
-        .map_err(|e| MessageError::ipc("loaning a matches sample", e))?;
-    let mut s = s.write_from_slice(entries);
     h.count = entries.len() as u32;
-    *s.user_header_mut() = h;
-    s.send()
-        .map_err(|e| MessageError::ipc("sending matches", e))?;
+    send_slice(p, h, entries)?;
     Ok(h)
 }
 
 /// Runs the matching stage until SIGTERM.
 pub fn run(args: &StageArgs) -> Result<()> {
     let cfg = args.load_config()?.pipeline;
-    let mut lg = matcher(&cfg)?;
+    let mut matcher = matcher(&cfg)?;
     let mut ctx = StageContext::new(StageKind::Matching, args.worker, &cfg)?;
     let features = ctx.slice_subscriber::<f32>(Topic::Features)?;
     let poses = ctx.header_subscriber::<PoseMsg>(Topic::Poses)?;
@@ -126,7 +120,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
                 (Some(f), Some(r)) => {
                     let h = match cache.get(&r) {
                         Some(rf) => {
-                            let m = lg.match_features(rf, &f)?;
+                            let m = matcher.match_features(rf, &f)?;
                             let entries: Vec<MatchEntry> = m
                                 .pairs
                                 .iter()

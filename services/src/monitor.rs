@@ -11,8 +11,8 @@ use supermvo_messages::iceoryx2::config::Config as IpcConfig;
 use supermvo_messages::iceoryx2::node::NodeView;
 use supermvo_messages::iceoryx2::prelude::*;
 use supermvo_messages::{
-    create_node, BackendState, Ipc, MessageError, Progress, ProgressEvent, Services, StageKind,
-    Status, Topic,
+    create_node, BackendState, Ipc, IpcNode, MessageError, Progress, ProgressEvent, Services,
+    StageKind, Status, Topic,
 };
 
 /// A node of some SuPerMVO pipeline.
@@ -96,8 +96,6 @@ pub struct Monitor {
     progress: supermvo_messages::iceoryx2::port::subscriber::Subscriber<Ipc, Progress, ()>,
     backend: supermvo_messages::iceoryx2::port::subscriber::Subscriber<Ipc, BackendState, ()>,
 }
-
-use supermvo_messages::IpcNode;
 
 impl std::fmt::Debug for Monitor {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {

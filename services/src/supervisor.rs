@@ -5,7 +5,6 @@
 //! SIGINT/SIGTERM. It writes `metrics.json` and `processes.json` to the output directory.
 
 use crate::backend::read_records;
-use crate::common::POLL;
 use anyhow::{bail, Context, Result};
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
@@ -325,7 +324,7 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
     let deadline = Duration::from_millis(cfg.deadline_ms);
 
     loop {
-        if node.wait(Duration::from_millis(2).max(POLL)).is_err() {
+        if node.wait(Duration::from_millis(2)).is_err() {
             interrupted = true;
             break;
         }

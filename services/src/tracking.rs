@@ -14,7 +14,7 @@ use supermvo_inference::{Features, Matches};
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
 use supermvo_messages::iceoryx2::prelude::*;
 use supermvo_messages::{
-    now_ns, BackendState, FrameHeader, MessageError, PoseMsg, StageKind, Status, Topic,
+    now_ns, BackendState, FrameHeader, MatchEntry, MessageError, PoseMsg, StageKind, Status, Topic,
 };
 use supermvo_vo::tracker::{FrameMeta, FrameOutput, Tracker, TrackerConfig, TrackingState};
 
@@ -187,5 +187,3 @@ fn publish(p: &PosePublisher, mut h: FrameHeader, msg: PoseMsg) -> Result<FrameH
         .map_err(|e| MessageError::ipc("sending a pose", e))?;
     Ok(h)
 }
-
-use supermvo_messages::MatchEntry;
