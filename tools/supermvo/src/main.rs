@@ -20,6 +20,7 @@ mod features_cmd;
 mod graph_cmd;
 mod models_cmd;
 mod run_cmd;
+mod synth_cmd;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -50,6 +51,8 @@ enum Command {
     Monitor(daemon_cmd::MonitorArgs),
     /// List the nodes and services of running pipelines.
     Inspect(daemon_cmd::InspectArgs),
+    /// Render a synthetic driving sequence with exact ground truth (KITTI layout).
+    Synth(synth_cmd::SynthArgs),
 }
 
 fn main() -> ExitCode {
@@ -70,6 +73,7 @@ fn main() -> ExitCode {
         Command::Graph(args) => graph_cmd::run(&args),
         Command::Monitor(args) => daemon_cmd::monitor(&args),
         Command::Inspect(args) => daemon_cmd::inspect_cmd(&args),
+        Command::Synth(args) => synth_cmd::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
