@@ -128,6 +128,13 @@ fn multiprocess_lossless_equals_inprocess_bit_for_bit_on_kitti_03() {
     let opts = options("parity", &seq_dir, tmp.path(), 0);
     let metrics = supervisor::run(&opts).unwrap();
     let records = read_records(&tmp.path().join("frames.csv")).unwrap();
+    // KITTI 03 never revisits a place: loop closure (on by default) must accept nothing.
+    assert!(opts.config.pipeline.loop_closure);
+    assert!(
+        !tmp.path().join("loops.json").exists(),
+        "false loop on KITTI 03: {}",
+        std::fs::read_to_string(tmp.path().join("loops.json")).unwrap_or_default()
+    );
 
     // the same stages, in this process, one frame after the other
     let seq = KittiSequence::open(&seq_dir).unwrap();
@@ -136,6 +143,7 @@ fn multiprocess_lossless_equals_inprocess_bit_for_bit_on_kitti_03() {
         features::extractor(p).unwrap(),
         matching::matcher(p).unwrap(),
         Tracker::new(seq.calib, tracking::tracker_config(p)),
+        None,
     );
     let n = seq.images.len();
     assert_eq!(records.len(), n + 1, "every frame and the end of stream");

@@ -115,9 +115,26 @@ pub fn read_records(path: &Path) -> Result<Vec<Record>> {
     Ok(text.lines().skip(1).filter_map(Record::parse).collect())
 }
 
+/// The records with the loop-corrected poses the tracking stage wrote to `out` (when it
+/// closed loops) in place of the recorded ones.
+pub fn with_corrections(out: &Path, records: &[Record]) -> Vec<Record> {
+    let corrected = crate::tracking::read_corrected(&out.join(crate::tracking::CORRECTED_FILE));
+    records
+        .iter()
+        .map(|r| match (r.pose, corrected.get(&r.seq)) {
+            (Some(_), Some(p)) => Record {
+                pose: Some(*p),
+                ..r.clone()
+            },
+            _ => r.clone(),
+        })
+        .collect()
+}
+
 /// Writes the trajectory of the records with a pose: TUM always, KITTI when every frame of
 /// the sequence has a pose.
 pub fn write_outputs(out: &Path, records: &[Record]) -> Result<()> {
+    let records = with_corrections(out, records);
     let est: Vec<&Record> = records.iter().filter(|r| r.pose.is_some()).collect();
     let traj = Trajectory {
         stamps: Some(est.iter().map(|r| r.stamp).collect()),

@@ -16,7 +16,10 @@ use supermvo_messages::iceoryx2::prelude::*;
 use supermvo_messages::{
     now_ns, BackendState, FrameHeader, MatchEntry, MessageError, PoseMsg, StageKind, Status, Topic,
 };
-use supermvo_vo::tracker::{FrameMeta, FrameOutput, Tracker, TrackerConfig, TrackingState};
+use supermvo_vo::loops::{LoopCloser, LoopConfig};
+use supermvo_vo::tracker::{
+    close_loops, FrameMeta, FrameOutput, Tracker, TrackerConfig, TrackingState,
+};
 
 /// The tracker configuration the daemon and `supermvo run --mode inprocess` both use.
 pub fn tracker_config(cfg: &PipelineConfig) -> TrackerConfig {
@@ -59,6 +62,18 @@ pub fn run(args: &StageArgs) -> Result<()> {
     let cfg = args.load_config()?.pipeline;
     let seq = KittiSequence::open(&args.seq)?;
     let mut tracker = Tracker::new(seq.calib, tracker_config(&cfg));
+    // Loop closure runs beside the tracker, so that its corrections reach the tracker before
+    // the next frame exactly as in one process (lossless runs stay bit-identical).
+    let mut loops = cfg
+        .loop_closure
+        .then(|| LoopCloser::new(seq.calib, LoopConfig::default()));
+    let corrected_path = args.out.join(CORRECTED_FILE);
+    for stale in [
+        corrected_path.clone(),
+        corrected_path.with_file_name("loops.json"),
+    ] {
+        let _ = std::fs::remove_file(stale);
+    }
     let mut ctx = StageContext::new(StageKind::Tracking, args.worker, &cfg)?;
     let features = ctx.slice_subscriber::<f32>(Topic::Features)?;
     let matches = ctx.slice_subscriber::<MatchEntry>(Topic::Matches)?;
@@ -140,12 +155,21 @@ pub fn run(args: &StageArgs) -> Result<()> {
                         stamp: fh.stamp,
                     };
                     let out = tracker.step(meta, f, m.as_ref());
+                    if let Some(l) = loops.as_mut() {
+                        close_loops(l, &mut tracker, &out);
+                    }
                     let mut h = fh.forward(Status::Ok);
                     h.t_ns[StageKind::Matching as usize] = mh.t_ns[StageKind::Matching as usize];
                     publish(&publisher, h, pose_msg(&out))?
                 }
                 (st_f, st_m, _) => {
                     let st = if st_f != Status::Ok { st_f } else { st_m };
+                    if st == Status::EndOfStream {
+                        // before the end reaches the back end, which then writes the trajectory
+                        if let Some(l) = loops.as_ref().filter(|l| !l.loops().is_empty()) {
+                            write_corrected(&corrected_path, l)?;
+                        }
+                    }
                     let mut h = fh.forward(st);
                     h.t_ns[StageKind::Matching as usize] = mh.t_ns[StageKind::Matching as usize];
                     publish(&publisher, h, no_frame(&tracker))?
@@ -159,6 +183,48 @@ pub fn run(args: &StageArgs) -> Result<()> {
         ctx.heartbeat_if_idle();
     }
     Ok(())
+}
+
+/// Loop-corrected poses by sequence number, written by the tracking stage at the end of the
+/// stream when loops were closed (the back end's trajectory uses them).
+pub const CORRECTED_FILE: &str = "corrected.csv";
+
+fn write_corrected(path: &std::path::Path, loops: &LoopCloser) -> Result<()> {
+    use anyhow::Context as _;
+    let mut text = String::new();
+    for (seq, p) in loops.trajectory() {
+        let m = p.to_matrix();
+        let values: Vec<String> = (0..3)
+            .flat_map(|r| (0..4).map(move |c| (r, c)))
+            .map(|(r, c)| m[(r, c)].to_string())
+            .collect();
+        text.push_str(&format!("{seq},{}\n", values.join(",")));
+    }
+    let json = serde_json::to_string_pretty(&loops.loops())?;
+    std::fs::write(path.with_file_name("loops.json"), json)
+        .and_then(|_| std::fs::write(path, text))
+        .with_context(|| format!("writing {}", path.display()))?;
+    tracing::info!(
+        loops = loops.loops().len(),
+        "loop-corrected trajectory written"
+    );
+    Ok(())
+}
+
+/// Reads [`CORRECTED_FILE`]: `seq -> T_world_cam` (3x4, row-major).
+pub fn read_corrected(path: &std::path::Path) -> std::collections::HashMap<u64, [f64; 12]> {
+    let text = std::fs::read_to_string(path).unwrap_or_default();
+    text.lines()
+        .filter_map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            let seq = f.first()?.parse().ok()?;
+            let mut p = [0.0; 12];
+            for (i, v) in p.iter_mut().enumerate() {
+                *v = f.get(i + 1)?.parse().ok()?;
+            }
+            Some((seq, p))
+        })
+        .collect()
 }
 
 /// The message for a frame the tracker did not see (dropped, unreadable, lost, end).

@@ -111,6 +111,9 @@ pub struct PipelineConfig {
     /// Extra wait per frame in each features worker, ms, [0, 10000]: emulates a front end
     /// that waits on an accelerator (for scaling tests); 0 in normal use.
     pub features_extra_latency_ms: u64,
+    /// Recognise revisited places and correct the trajectory (and the tracker's map) with a
+    /// Sim(3) pose graph of keyframes.
+    pub loop_closure: bool,
 }
 
 impl Default for PipelineConfig {
@@ -131,6 +134,7 @@ impl Default for PipelineConfig {
             max_frames: 0,
             loops: 1,
             features_extra_latency_ms: 0,
+            loop_closure: true,
         }
     }
 }

@@ -1,6 +1,7 @@
-//! SE(2) and SE(3) as Lie groups, with GTSAM's conventions so errors and steps match it:
-//! tangent order `(x, y, theta)` for SE(2) and `(omega, v)` for SE(3); retraction
-//! `X * Exp(delta)`; `Local(a, b) = Log(a^-1 b)`.
+//! SE(2), SE(3) and Sim(3) as Lie groups, with GTSAM's conventions so errors and steps match
+//! it: tangent order `(x, y, theta)` for SE(2), `(omega, v)` for SE(3) and
+//! `(omega, v, sigma)` for Sim(3) (`sigma` the log of the scale); retraction `X * Exp(delta)`;
+//! `Local(a, b) = Log(a^-1 b)`.
 
 use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
 use supermvo_geometry::{skew, so3_exp, so3_log};
@@ -253,6 +254,116 @@ impl LieGroup<6> for Se3 {
     }
 }
 
+/// A similarity transform `x -> s R x + t` as a Lie group (for pose graphs whose keyframes
+/// may disagree in scale, as monocular odometry's do).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sim3 {
+    /// Rotation.
+    pub r: Matrix3<f64>,
+    /// Translation.
+    pub t: Vector3<f64>,
+    /// Scale, positive.
+    pub s: f64,
+}
+
+impl Sim3 {
+    /// A rigid transform (scale 1).
+    pub fn from_se3(x: &Se3) -> Self {
+        Self {
+            r: x.r,
+            t: x.t,
+            s: 1.0,
+        }
+    }
+
+    /// Applies the transform to a point.
+    pub fn transform(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        self.s * (self.r * p) + self.t
+    }
+}
+
+/// `W(omega, sigma) = sum_k A^k / (k + 1)!` with `A = [omega]x + sigma I`: the matrix that maps
+/// the tangent translation to the translation of `Exp` (the series is entire, so it converges
+/// for every argument; terms are summed until they vanish).
+fn sim3_w(w: &Vector3<f64>, sigma: f64) -> Matrix3<f64> {
+    let a = skew(w) + Matrix3::identity() * sigma;
+    let mut term = Matrix3::identity();
+    let mut sum = term;
+    for k in 1..80 {
+        term = term * a / (k as f64 + 1.0);
+        sum += term;
+        if term.abs().max() < 1e-17 * (1.0 + sum.abs().max()) {
+            break;
+        }
+    }
+    sum
+}
+
+impl LieGroup<7> for Sim3 {
+    fn identity() -> Self {
+        Sim3 {
+            r: Matrix3::identity(),
+            t: Vector3::zeros(),
+            s: 1.0,
+        }
+    }
+    fn compose(&self, o: &Self) -> Self {
+        Sim3 {
+            r: self.r * o.r,
+            t: self.s * (self.r * o.t) + self.t,
+            s: self.s * o.s,
+        }
+    }
+    fn inverse(&self) -> Self {
+        let rt = self.r.transpose();
+        Sim3 {
+            r: rt,
+            t: -(rt * self.t) / self.s,
+            s: 1.0 / self.s,
+        }
+    }
+    fn exp(xi: &SVector<f64, 7>) -> Self {
+        let w = Vector3::new(xi[0], xi[1], xi[2]);
+        let v = Vector3::new(xi[3], xi[4], xi[5]);
+        Sim3 {
+            r: so3_exp(&w),
+            t: sim3_w(&w, xi[6]) * v,
+            s: xi[6].exp(),
+        }
+    }
+    fn log(&self) -> SVector<f64, 7> {
+        let w = so3_log(&self.r);
+        let sigma = self.s.ln();
+        let v = sim3_w(&w, sigma)
+            .try_inverse()
+            .map_or(self.t, |wi| wi * self.t);
+        SVector::<f64, 7>::from_column_slice(&[w.x, w.y, w.z, v.x, v.y, v.z, sigma])
+    }
+    /// `Ad = [[R, 0, 0], [[t]x R, s R, -t], [0, 0, 1]]`.
+    fn adjoint(&self) -> SMatrix<f64, 7, 7> {
+        let mut a = SMatrix::<f64, 7, 7>::zeros();
+        a.fixed_view_mut::<3, 3>(0, 0).copy_from(&self.r);
+        a.fixed_view_mut::<3, 3>(3, 0)
+            .copy_from(&(skew(&self.t) * self.r));
+        a.fixed_view_mut::<3, 3>(3, 3).copy_from(&(self.r * self.s));
+        a.fixed_view_mut::<3, 1>(3, 6).copy_from(&(-self.t));
+        a[(6, 6)] = 1.0;
+        a
+    }
+    /// `ad(xi) = [[[w]x, 0, 0], [[v]x, [w]x + sigma I, -v], [0, 0, 0]]`.
+    fn ad(xi: &SVector<f64, 7>) -> SMatrix<f64, 7, 7> {
+        let v = Vector3::new(xi[3], xi[4], xi[5]);
+        let wx = skew(&Vector3::new(xi[0], xi[1], xi[2]));
+        let mut a = SMatrix::<f64, 7, 7>::zeros();
+        a.fixed_view_mut::<3, 3>(0, 0).copy_from(&wx);
+        a.fixed_view_mut::<3, 3>(3, 0).copy_from(&skew(&v));
+        a.fixed_view_mut::<3, 3>(3, 3)
+            .copy_from(&(wx + Matrix3::identity() * xi[6]));
+        a.fixed_view_mut::<3, 1>(3, 6).copy_from(&(-v));
+        a
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -296,6 +407,36 @@ mod tests {
             prop_assert!((closed - jn).abs().max() < 1e-6, "closed form vs finite differences");
             let series = right_jacobian_series::<6>(&Se3::ad(&xa)).try_inverse().unwrap();
             prop_assert!((closed - series).abs().max() < 1e-9, "closed form vs series");
+        }
+
+        #[test]
+        fn sim3_group_laws(a in proptest::array::uniform7(-1.5f64..1.5), b in proptest::array::uniform7(-1.5f64..1.5)) {
+            let (xa, xb) = (SVector::<f64, 7>::from(a), SVector::<f64, 7>::from(b));
+            let (pa, pb) = (Sim3::exp(&xa), Sim3::exp(&xb));
+            prop_assert!((pa.log() - xa).norm() < 1e-9, "log(exp(x)) = x");
+            prop_assert!(pa.compose(&pa.inverse()).log().norm() < 1e-12, "x x^-1 = 1");
+            let lhs = pa.compose(&pb).compose(&pa.inverse());
+            let rhs = Sim3::exp(&(pa.adjoint() * xb));
+            prop_assert!(lhs.between(&rhs).log().norm() < 1e-9, "adjoint");
+            // Exp agrees with the matrix exponential of the 4x4 generator.
+            let mut g = nalgebra::Matrix4::<f64>::zeros();
+            g.fixed_view_mut::<3, 3>(0, 0).copy_from(&(skew(&Vector3::new(a[0], a[1], a[2])) + Matrix3::identity() * a[6]));
+            g.fixed_view_mut::<3, 1>(0, 3).copy_from(&Vector3::new(a[3], a[4], a[5]));
+            let m = g.exp();
+            let sr = pa.r * pa.s;
+            prop_assert!((m.fixed_view::<3, 3>(0, 0) - sr).abs().max() < 1e-9);
+            prop_assert!((m.fixed_view::<3, 1>(0, 3) - pa.t).abs().max() < 1e-9);
+            // The bracket: ad(a) b = [a^, b^].
+            let gen = |x: &SVector<f64, 7>| {
+                let mut g = nalgebra::Matrix4::<f64>::zeros();
+                g.fixed_view_mut::<3, 3>(0, 0).copy_from(&(skew(&Vector3::new(x[0], x[1], x[2])) + Matrix3::identity() * x[6]));
+                g.fixed_view_mut::<3, 1>(0, 3).copy_from(&Vector3::new(x[3], x[4], x[5]));
+                g
+            };
+            let br = gen(&xa) * gen(&xb) - gen(&xb) * gen(&xa);
+            prop_assert!((gen(&(Sim3::ad(&xa) * xb)) - br).abs().max() < 1e-12);
+            let jn = numeric_jr_inv::<Sim3, 7>(&xa);
+            prop_assert!((Sim3::right_jacobian_inverse(&xa) - jn).abs().max() < 1e-6);
         }
 
         #[test]

@@ -337,6 +337,29 @@ impl Tracker {
         self.frames_since_keyframe = 0;
     }
 
+    /// Moves the whole map (landmarks, keyframe poses, the reference and the last pose) by
+    /// the similarity `x -> s R x + t`: the loop closer's correction of the world frame, so
+    /// that tracking continues in the corrected world at the corrected scale.
+    pub fn apply_correction(&mut self, c: &supermvo_optim::lie::Sim3) {
+        let move_pose = |(r, t): (Mat3, Vec3)| {
+            let centre = -(r.transpose() * t);
+            let centre = c.s * (c.r * centre) + c.t;
+            let r2 = r * c.r.transpose();
+            (r2, -(r2 * centre))
+        };
+        for p in self.keyframe_poses.iter_mut() {
+            *p = move_pose(*p);
+        }
+        for lm in self.landmarks.values_mut() {
+            lm.p = c.s * (c.r * lm.p) + c.t;
+        }
+        if let Some(kf) = self.keyframe.as_mut() {
+            (kf.r, kf.t) = move_pose((kf.r, kf.t));
+        }
+        self.last_pose = move_pose(self.last_pose);
+        self.scale = self.scale.map(|s| s * c.s);
+    }
+
     fn output(
         &self,
         input: &FrameMeta,
@@ -701,27 +724,54 @@ pub struct VoPipeline {
     extractor: Box<dyn Extractor + Send>,
     matcher: Box<dyn Matcher + Send>,
     tracker: Tracker,
+    loops: Option<crate::loops::LoopCloser>,
 }
 
 impl std::fmt::Debug for VoPipeline {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "VoPipeline({:?})", self.tracker)
+        write!(f, "VoPipeline({:?}, {:?})", self.tracker, self.loops)
     }
 }
 
 impl VoPipeline {
-    /// A pipeline over the given front end.
+    /// A pipeline over the given front end; with a loop closer, keyframes go to it and its
+    /// corrections go back to the tracker.
     pub fn new(
         extractor: Box<dyn Extractor + Send>,
         matcher: Box<dyn Matcher + Send>,
         tracker: Tracker,
+        loops: Option<crate::loops::LoopCloser>,
     ) -> Self {
         Self {
             extractor,
             matcher,
             tracker,
+            loops,
         }
     }
+
+    /// The loop closer, when there is one.
+    pub fn loop_closer(&self) -> Option<&crate::loops::LoopCloser> {
+        self.loops.as_ref()
+    }
+}
+
+/// Hands one tracked frame to the loop closer and applies the correction it returns to the
+/// tracker: the feedback of the back end, shared by the in-process pipeline and the daemon.
+pub fn close_loops(
+    loops: &mut crate::loops::LoopCloser,
+    tracker: &mut Tracker,
+    out: &FrameOutput,
+) -> Option<crate::loops::Correction> {
+    let pose = output_pose(out)?;
+    if !out.keyframe {
+        loops.add_frame(out.index, &pose);
+        return None;
+    }
+    let (_, features) = tracker.reference()?;
+    let correction = loops.add_keyframe(out.index, &pose, features)?;
+    tracker.apply_correction(&correction.sim3);
+    Some(correction)
 }
 
 impl Stage for VoPipeline {
@@ -743,7 +793,11 @@ impl Stage for VoPipeline {
             index: input.index,
             stamp: input.stamp,
         };
-        Ok(self.tracker.step(meta, cur, matches.as_ref()))
+        let out = self.tracker.step(meta, cur, matches.as_ref());
+        if let Some(loops) = self.loops.as_mut() {
+            close_loops(loops, &mut self.tracker, &out);
+        }
+        Ok(out)
     }
 }
 

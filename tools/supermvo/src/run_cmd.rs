@@ -9,9 +9,10 @@ use supermvo_config::{Config, IngestMode};
 use supermvo_dataset::{write_trajectory, GrayImage, KittiSequence, Trajectory, TrajectoryFormat};
 use supermvo_eval::{evaluate, EvalOptions};
 use supermvo_geometry::AlignmentKind;
-use supermvo_services::backend::read_records;
+use supermvo_services::backend::{read_records, with_corrections};
 use supermvo_services::supervisor::{default_bin_dir, SupervisorOptions};
 use supermvo_services::{features, matching, tracking};
+use supermvo_vo::loops::{LoopCloser, LoopConfig};
 use supermvo_vo::stage::Timed;
 use supermvo_vo::tracker::{output_pose, FrameInput, Tracker, TrackingState, VoPipeline};
 
@@ -66,6 +67,9 @@ pub struct RunArgs {
     /// Replay the sequence this many times [pipeline.loops].
     #[arg(long)]
     loops: Option<usize>,
+    /// Odometry only: no loop closure [pipeline.loop_closure = false].
+    #[arg(long)]
+    no_loop_closure: bool,
     /// No progress display.
     #[arg(long, short)]
     quiet: bool,
@@ -96,6 +100,9 @@ impl RunArgs {
         }
         if let Some(v) = self.loops {
             p.loops = v;
+        }
+        if self.no_loop_closure {
+            p.loop_closure = false;
         }
         if let Some(f) = &self.frontend {
             p.frontend = match f.as_str() {
@@ -200,10 +207,14 @@ fn run_inprocess(
 ) -> Result<(Trajectory, serde_json::Value)> {
     let p = &cfg.pipeline;
     let tracker = Tracker::new(seq.calib, tracking::tracker_config(p));
+    let loops = p
+        .loop_closure
+        .then(|| LoopCloser::new(seq.calib, LoopConfig::default()));
     let mut vo = Timed::new(VoPipeline::new(
         features::extractor(p)?,
         matching::matcher(p)?,
         tracker,
+        loops,
     ));
     let first = GrayImage::load(&seq.images[0])?;
     let bar = progress_bar(args.quiet, n);
@@ -236,10 +247,25 @@ fn run_inprocess(
         outputs.push(out);
     }
     bar.finish_and_clear();
-    let est: Vec<_> = outputs
-        .iter()
-        .filter_map(|o| output_pose(o).map(|p| (o.stamp, p)))
-        .collect();
+    let closer = vo.inner().loop_closer();
+    let est: Vec<_> = match closer {
+        // Every estimated frame, moved by the loop corrections.
+        Some(c) => c
+            .trajectory()
+            .into_iter()
+            .map(|(i, p)| (seq.times[i], p))
+            .collect(),
+        None => outputs
+            .iter()
+            .filter_map(|o| output_pose(o).map(|p| (o.stamp, p)))
+            .collect(),
+    };
+    let loops = closer.map(|c| c.loops()).unwrap_or_default();
+    if let Some(reason) = closer.and_then(|c| c.disabled_reason()) {
+        outln!("loop closure off: {reason}");
+    } else if closer.is_some() {
+        outln!("loops closed: {}", loops.len());
+    }
     let traj = Trajectory {
         stamps: Some(est.iter().map(|e| e.0).collect()),
         poses: est.iter().map(|e| e.1).collect(),
@@ -258,6 +284,7 @@ fn run_inprocess(
         "mode": "inprocess",
         "sequence": seq.dir, "frames": n, "estimated": est.len(), "lost": lost,
         "timing_ms": {"frame_median": vo.median_ms(), "per_frame": vo.durations_ms()},
+        "loops": loops,
         "frames_detail": outputs,
     });
     Ok((traj, report))
@@ -287,7 +314,7 @@ fn run_multiprocess(
         bin_dir: default_bin_dir(),
         quiet: args.quiet,
     })?;
-    let records = read_records(&args.out.join("frames.csv"))?;
+    let records = with_corrections(&args.out, &read_records(&args.out.join("frames.csv"))?);
     let est: Vec<_> = records
         .iter()
         .filter_map(|r| r.pose.as_ref().map(|p| (r.stamp, tracking::pose_of(p))))
@@ -308,8 +335,16 @@ fn run_multiprocess(
         e2e.p99,
         metrics.restarts.len()
     );
+    let loops: serde_json::Value = std::fs::read_to_string(args.out.join("loops.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok())
+        .unwrap_or_else(|| serde_json::json!([]));
+    if cfg.pipeline.loop_closure {
+        outln!("loops closed: {}", loops.as_array().map_or(0, |l| l.len()));
+    }
     let report = serde_json::json!({
         "mode": "multiprocess",
+        "loops": loops,
         "sequence": seq.dir, "frames": records.iter().filter(|r| r.status != "end").count(),
         "estimated": est.len(), "lost": lost,
         "metrics": metrics,

@@ -2,35 +2,12 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
 mod common;
 
-use std::path::Path;
-
-fn models_ready() -> bool {
-    let home = std::env::var_os("SUPERMVO_CACHE")
-        .map(std::path::PathBuf::from)
-        .unwrap_or_else(|| Path::new(&std::env::var("HOME").unwrap()).join(".cache/supermvo"));
-    let ok = [
-        "models/xfeat.onnx",
-        "models/lighterglue.onnx",
-        "onnxruntime/1.31.1/libonnxruntime.so.1.31.1",
-    ]
-    .iter()
-    .all(|p| home.join(p).is_file());
-    if !ok {
-        assert!(
-            std::env::var("SUPERMVO_REQUIRE_SHARED").as_deref() != Ok("1"),
-            "run 'supermvo models fetch' first"
-        );
-        eprintln!("SKIP: models not fetched");
-    }
-    ok
-}
-
 #[test]
 fn runs_deterministically_with_report_and_evaluation() {
     let Some(seq) = common::shared_data("kitti/sequences/00") else {
         return;
     };
-    if !models_ready() {
+    if !common::models_ready() {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
@@ -105,7 +82,7 @@ fn black_frame_no_motion_and_unreadable_frame_are_states_not_failures() {
     let Some(src) = common::shared_data("kitti/sequences/00") else {
         return;
     };
-    if !models_ready() {
+    if !common::models_ready() {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();

@@ -101,3 +101,26 @@ pub fn gradient_png(w: u32, h: u32) -> Vec<u8> {
     chunk(&mut png, b"IEND", &[]);
     png
 }
+
+/// Whether ONNX Runtime and the default models are in the cache; when not, prints why (the
+/// test then skips), unless `SUPERMVO_REQUIRE_SHARED=1`, in which case it fails.
+pub fn models_ready() -> bool {
+    let home = std::env::var_os("SUPERMVO_CACHE")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| Path::new(&std::env::var("HOME").unwrap()).join(".cache/supermvo"));
+    let ok = [
+        "models/xfeat.onnx",
+        "models/lighterglue.onnx",
+        "onnxruntime/1.31.1/libonnxruntime.so.1.31.1",
+    ]
+    .iter()
+    .all(|p| home.join(p).is_file());
+    if !ok {
+        assert!(
+            std::env::var("SUPERMVO_REQUIRE_SHARED").as_deref() != Ok("1"),
+            "run 'supermvo models fetch' first"
+        );
+        eprintln!("SKIP: models not fetched");
+    }
+    ok
+}
