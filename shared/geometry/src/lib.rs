@@ -6,6 +6,7 @@
 pub mod essential;
 pub mod pnp;
 mod pose;
+pub mod rng;
 mod rotation;
 mod sim3;
 mod umeyama;

@@ -211,15 +211,8 @@ fn orientation(img: &Plane, x: i32, y: i32) -> f32 {
 
 /// The BRIEF point pairs: a fixed-seed isotropic Gaussian (σ = 31/5) clipped to the patch.
 fn brief_pattern() -> Vec<[(f32, f32); 2]> {
-    let mut state: u64 = 0x5EED_0F0B_u64;
-    let mut next = || {
-        // splitmix64
-        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rng = supermvo_geometry::rng::SplitMix64::new(0x5EED_0F0B);
+    let mut next = || rng.next_f64();
     let mut gauss = || {
         let (u1, u2) = (next().max(1e-12), next());
         ((-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()) as f32

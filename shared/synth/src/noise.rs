@@ -3,12 +3,9 @@
 //! Everything here is a pure function of its integer inputs, so a scene renders to the same
 //! bytes on every machine and thread count.
 
-/// SplitMix64 finaliser: a well-mixed 64-bit hash of `x`.
-pub fn mix64(mut x: u64) -> u64 {
-    x = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    x ^ (x >> 31)
+/// A well-mixed 64-bit hash of `x` (SplitMix64's step and output function).
+pub fn mix64(x: u64) -> u64 {
+    supermvo_geometry::rng::splitmix64_mix(x.wrapping_add(0x9E37_79B9_7F4A_7C15))
 }
 
 /// Hash of a lattice point and a seed, uniform in [0, 1).

@@ -194,14 +194,8 @@ fn mutual_matches(a: &DMatrix<f32>, b: &DMatrix<f32>, min_cos: f32) -> Vec<(usiz
 fn kmeans(data: &DMatrix<f32>, k: usize, iterations: usize) -> DMatrix<f32> {
     let (n, d) = (data.nrows(), data.ncols());
     let k = k.min(n).max(1);
-    let mut state = 0x5EED_u64;
-    let mut next = || {
-        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rng = supermvo_geometry::rng::SplitMix64::new(0x5EED);
+    let mut next = || rng.next_f64();
     let mut centres = DMatrix::<f32>::zeros(k, d);
     centres
         .row_mut(0)
