@@ -38,6 +38,15 @@ pub struct TrackerConfig {
     pub max_frames_between_keyframes: usize,
     /// Keyframes in the local bundle adjustment window (0 disables it).
     pub local_ba_window: usize,
+    /// Local-map search: after the pose from the keyframe matches, landmarks of the local
+    /// window that the keyframe does not carry are projected into the frame and matched to
+    /// keypoints within this radius (pixels) by descriptor; 0 disables it.
+    pub map_search_radius_px: f64,
+    /// Largest descriptor distance accepted by the local-map search, normalised to [0, 1]:
+    /// `1 - cos` for float descriptors, Hamming distance / 256 for ORB.
+    pub map_search_max_distance: f32,
+    /// The best candidate must be below this times the second best.
+    pub map_search_ratio: f32,
     /// Essential-matrix RANSAC.
     pub ransac: RansacConfig,
     /// PnP RANSAC.
@@ -54,6 +63,9 @@ impl Default for TrackerConfig {
             min_triangulation_parallax_deg: 0.5,
             max_frames_between_keyframes: 3,
             local_ba_window: 6,
+            map_search_radius_px: 10.0,
+            map_search_max_distance: 0.25,
+            map_search_ratio: 0.9,
             ransac: RansacConfig::default(),
             pnp: PnpConfig::default(),
         }
@@ -110,10 +122,27 @@ pub struct FrameOutput {
     pub scale: Option<f64>,
 }
 
-/// A map point with every keyframe observation `(keyframe id, bearing)` of it.
+/// A map point with every keyframe observation `(keyframe id, bearing)` of it and the
+/// descriptor of its latest observation (for the local-map search).
 struct Landmark {
     p: Vec3,
     obs: Vec<(usize, Vec3)>,
+    desc: Vec<f32>,
+}
+
+/// Normalised distance between two descriptors of one front end: `1 - cos` for float
+/// (L2-normalised) descriptors, the Hamming distance / 256 for ORB's bit-cast words.
+fn descriptor_distance(a: &[f32], b: &[f32]) -> f32 {
+    if a.len() == supermvo_inference::orb::ORB_WORDS {
+        let bits: u32 = a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| (x.to_bits() ^ y.to_bits()).count_ones())
+            .sum();
+        bits as f32 / 256.0
+    } else {
+        1.0 - a.iter().zip(b).map(|(x, y)| x * y).sum::<f32>()
+    }
 }
 
 struct Keyframe {
@@ -124,6 +153,9 @@ struct Keyframe {
     t: Vec3,
     features: Features,
     landmark: Vec<Option<usize>>,
+    /// Per keypoint, the pending track (observations still without enough parallax) it
+    /// continues, if any.
+    track: Vec<Option<usize>>,
 }
 
 /// The tracker (see module docs).
@@ -134,13 +166,23 @@ pub struct Tracker {
     /// window observes them (nothing can use them again), so memory stays flat on long runs.
     landmarks: std::collections::BTreeMap<usize, Landmark>,
     next_landmark: usize,
+    /// Pending tracks by id: keyframe observations of a point that has no landmark yet.
+    tracks: std::collections::BTreeMap<usize, Vec<(usize, Vec3)>>,
+    next_track: usize,
     /// `T_cam_world` of every keyframe, by id (refined by the local BA).
     keyframe_poses: Vec<(Mat3, Vec3)>,
+    /// Id of the first keyframe of the current map: a loss starts a new map (its scale is
+    /// only carried by the median depth), which the local BA and the local-map search keep
+    /// apart from the old one.
+    segment_start: usize,
     keyframe: Option<Keyframe>,
     frames_since_keyframe: usize,
     /// Rotation and translation of `T_cam_world` of the reference used to re-initialise
     /// after a loss (the last tracked pose), so the trajectory continues in one frame.
     last_pose: (Mat3, Vec3),
+    /// Motion between the last two tracked frames, `T_last_prev` (rotation, translation):
+    /// the constant-velocity prediction used when the keyframe matches fail.
+    velocity: Option<(Mat3, Vec3)>,
     /// Scale of the map (median landmark depth at initialisation), to carry across
     /// re-initialisations.
     scale: Option<f64>,
@@ -188,24 +230,151 @@ impl Tracker {
             cfg,
             landmarks: std::collections::BTreeMap::new(),
             next_landmark: 0,
+            tracks: std::collections::BTreeMap::new(),
+            next_track: 0,
             keyframe_poses: Vec::new(),
+            segment_start: 0,
             keyframe: None,
             frames_since_keyframe: 0,
             last_pose: (Mat3::identity(), Vec3::zeros()),
+            velocity: None,
             scale: None,
         }
     }
 
-    /// Adds a landmark seen by two keyframes `(keyframe id, keypoint)`; returns its id.
-    fn add_landmark(&mut self, p: Vec3, views: [(usize, &[f32; 2]); 2]) -> usize {
-        let obs = views
-            .iter()
-            .map(|(k, kp)| (*k, bearing(&self.calib, kp)))
-            .collect();
+    /// Adds a landmark with its keyframe observations `(keyframe id, bearing)` and the
+    /// descriptor of the latest; returns its id.
+    fn add_landmark(&mut self, p: Vec3, obs: Vec<(usize, Vec3)>, desc: &[f32]) -> usize {
         let id = self.next_landmark;
         self.next_landmark += 1;
-        self.landmarks.insert(id, Landmark { p, obs });
+        let desc = desc.to_vec();
+        self.landmarks.insert(id, Landmark { p, obs, desc });
         id
+    }
+
+    /// Adds keyframe `kf_id`'s observation `(bearing, descriptor)` to landmark `id` and
+    /// re-triangulates it from all its observations when each still reprojects within 2 px.
+    fn observe_landmark(&mut self, id: usize, kf_id: usize, b: Vec3, desc: &[f32]) {
+        let thr = 2.0 / self.focal();
+        let poses = &self.keyframe_poses;
+        let Some(lm) = self.landmarks.get_mut(&id) else {
+            return;
+        };
+        lm.obs.push((kf_id, b));
+        lm.desc.clear();
+        lm.desc.extend_from_slice(desc);
+        let views: Vec<(Mat3, Vec3, Vec3)> = lm
+            .obs
+            .iter()
+            .map(|(k, bo)| (poses[*k].0, poses[*k].1, *bo))
+            .collect();
+        if let Some(p) = triangulate_views(&views) {
+            let consistent = views.iter().all(|(ro, to, bo)| {
+                let q = ro * p + to;
+                q.z > 0.0 && ((q.x / q.z - bo.x).powi(2) + (q.y / q.z - bo.y).powi(2)).sqrt() < thr
+            });
+            if consistent {
+                lm.p = p;
+            }
+        }
+    }
+
+    /// The pose of the next frame under constant velocity (`None` until two frames were
+    /// tracked in a row).
+    fn predict(&self) -> Option<(Mat3, Vec3)> {
+        let (rv, tv) = self.velocity?;
+        let (r, t) = self.last_pose;
+        Some((rv * r, rv * t + tv))
+    }
+
+    /// The local-map search: projects every landmark of the local map not in `skip` into
+    /// the frame at `T_cam_world = (r, t)` and pairs it with the free keypoint (`taken` false)
+    /// within the search radius whose descriptor is nearest, when that distance passes the
+    /// threshold and the ratio test. Each keypoint keeps its nearest landmark. Returns
+    /// `(keypoint, landmark id)` pairs in keypoint order.
+    fn search_local_map(
+        &self,
+        cur: &Features,
+        (r, t): (&Mat3, &Vec3),
+        taken: &[bool],
+        skip: &std::collections::BTreeSet<usize>,
+        radius: f64,
+    ) -> Vec<(usize, usize)> {
+        let (w, h) = cur.image_size;
+        if radius <= 0.0 || cur.is_empty() || w == 0 || h == 0 {
+            return Vec::new();
+        }
+        // keypoints bucketed in cells of the search radius
+        let cell = radius.max(1.0);
+        let (gw, gh) = (
+            (w as f64 / cell).ceil() as usize + 1,
+            (h as f64 / cell).ceil() as usize + 1,
+        );
+        let mut grid: Vec<Vec<usize>> = vec![Vec::new(); gw * gh];
+        let cell_of = |x: f64, y: f64| -> Option<(usize, usize)> {
+            let (cx, cy) = ((x / cell).floor(), (y / cell).floor());
+            (cx >= 0.0 && cy >= 0.0 && (cx as usize) < gw && (cy as usize) < gh)
+                .then_some((cx as usize, cy as usize))
+        };
+        for (i, kp) in cur.keypoints.iter().enumerate() {
+            if taken[i] {
+                continue;
+            }
+            if let Some((cx, cy)) = cell_of(kp[0] as f64, kp[1] as f64) {
+                grid[cy * gw + cx].push(i);
+            }
+        }
+        let c = &self.calib;
+        let mut best_for: Vec<Option<(f32, usize)>> = vec![None; cur.len()];
+        for (&id, lm) in &self.landmarks {
+            if skip.contains(&id) || lm.desc.len() != cur.dim {
+                continue;
+            }
+            let q = r * lm.p + t;
+            if q.z <= 1e-6 {
+                continue;
+            }
+            let (u, v) = (c.fx * q.x / q.z + c.cx, c.fy * q.y / q.z + c.cy);
+            if u < 0.0 || v < 0.0 || u >= w as f64 || v >= h as f64 {
+                continue;
+            }
+            let Some((gx, gy)) = cell_of(u, v) else {
+                continue;
+            };
+            let (mut best, mut second) = ((f32::INFINITY, usize::MAX), f32::INFINITY);
+            for y in gy.saturating_sub(1)..(gy + 2).min(gh) {
+                for x in gx.saturating_sub(1)..(gx + 2).min(gw) {
+                    for &i in &grid[y * gw + x] {
+                        let kp = cur.keypoints[i];
+                        if (kp[0] as f64 - u).hypot(kp[1] as f64 - v) > radius {
+                            continue;
+                        }
+                        let d = descriptor_distance(&lm.desc, cur.descriptor(i));
+                        if d < best.0 {
+                            second = best.0;
+                            best = (d, i);
+                        } else if d < second {
+                            second = d;
+                        }
+                    }
+                }
+            }
+            let (d, i) = best;
+            if i == usize::MAX
+                || d > self.cfg.map_search_max_distance
+                || d >= self.cfg.map_search_ratio * second
+            {
+                continue;
+            }
+            if best_for[i].is_none_or(|(d0, _)| d < d0) {
+                best_for[i] = Some((d, id));
+            }
+        }
+        best_for
+            .iter()
+            .enumerate()
+            .filter_map(|(i, b)| b.map(|(_, id)| (i, id)))
+            .collect()
     }
 
     /// Registers a keyframe pose and returns its id.
@@ -222,7 +391,10 @@ impl Tracker {
         if window < 3 || n < 3 {
             return;
         }
-        let first = n.saturating_sub(window);
+        let first = n.saturating_sub(window).max(self.segment_start);
+        if n - first < 3 {
+            return;
+        }
         let mut point_ids = Vec::new();
         let mut observations = Vec::new();
         for (&id, lm) in self.landmarks.iter() {
@@ -330,10 +502,13 @@ impl Tracker {
         let r = t_world_cam.r.transpose();
         let t = -(r * t_world_cam.t);
         self.last_pose = (r, t);
+        self.velocity = None;
         self.scale = scale;
         self.keyframe = None;
         self.landmarks.clear();
+        self.tracks.clear();
         self.keyframe_poses.clear();
+        self.segment_start = 0;
         self.frames_since_keyframe = 0;
     }
 
@@ -357,6 +532,9 @@ impl Tracker {
             (kf.r, kf.t) = move_pose((kf.r, kf.t));
         }
         self.last_pose = move_pose(self.last_pose);
+        if let Some(v) = self.velocity.as_mut() {
+            v.1 *= c.s;
+        }
         self.scale = self.scale.map(|s| s * c.s);
     }
 
@@ -388,7 +566,7 @@ impl Tracker {
     /// starts from it).
     fn set_reference(&mut self, frame: usize, r: Mat3, t: Vec3, cur: Features) {
         let id = self.new_keyframe_id(r, t);
-        let landmark = vec![None; cur.len()];
+        let (landmark, track) = (vec![None; cur.len()], vec![None; cur.len()]);
         self.keyframe = Some(Keyframe {
             id,
             frame,
@@ -396,12 +574,16 @@ impl Tracker {
             t,
             features: cur,
             landmark,
+            track,
         });
     }
 
     /// Makes `cur` (frame index `frame`, registered as keyframe `cur_id` at `(r, t)`) the new
-    /// keyframe: the matches `candidates` to `kf` are triangulated into new landmarks beside
-    /// those already in `landmark`, then the local BA runs.
+    /// keyframe. Each match in `candidates` to `kf` without a landmark extends the pending
+    /// track of its keypoint in `kf` (or starts one there); a track becomes a landmark once
+    /// its observations triangulate with enough parallax, otherwise it waits for the next
+    /// keyframe, so slow or forward motion still builds landmarks from a wider baseline.
+    /// Then the local BA runs.
     fn insert_keyframe(
         &mut self,
         kf: &Keyframe,
@@ -411,15 +593,27 @@ impl Tracker {
         mut landmark: Vec<Option<usize>>,
         candidates: &[(usize, usize)],
     ) {
-        let kf_pose = (&kf.r, &kf.t);
-        for (a, b, p) in
-            self.triangulate_pairs(kf_pose, &kf.features.keypoints, &cur, &r, &t, candidates)
-        {
-            let views = [
-                (kf.id, &kf.features.keypoints[a]),
-                (cur_id, &cur.keypoints[b]),
-            ];
-            landmark[b] = Some(self.add_landmark(p, views));
+        let mut track = vec![None; cur.len()];
+        for &(a, b) in candidates {
+            if landmark[b].is_some() || kf.landmark[a].is_some() {
+                continue;
+            }
+            let (id, mut obs) = match kf.track[a].and_then(|id| self.tracks.remove_entry(&id)) {
+                Some(entry) => entry,
+                None => {
+                    self.next_track += 1;
+                    let first = (kf.id, bearing(&self.calib, &kf.features.keypoints[a]));
+                    (self.next_track - 1, vec![first])
+                }
+            };
+            obs.push((cur_id, bearing(&self.calib, &cur.keypoints[b])));
+            match self.triangulate_track(&obs) {
+                Some(p) => landmark[b] = Some(self.add_landmark(p, obs, cur.descriptor(b))),
+                None => {
+                    self.tracks.insert(id, obs);
+                    track[b] = Some(id);
+                }
+            }
         }
         self.last_pose = (r, t);
         self.keyframe = Some(Keyframe {
@@ -429,10 +623,33 @@ impl Tracker {
             t,
             features: cur,
             landmark,
+            track,
         });
         self.frames_since_keyframe = 0;
         self.local_ba();
         self.prune_map();
+    }
+
+    /// The world point of a track's keyframe observations when it lies in front of every
+    /// view, reprojects within 2 px in each and has the configured parallax between the
+    /// first and the last view.
+    fn triangulate_track(&self, obs: &[(usize, Vec3)]) -> Option<Vec3> {
+        let views: Vec<(Mat3, Vec3, Vec3)> = obs
+            .iter()
+            .map(|(k, b)| (self.keyframe_poses[*k].0, self.keyframe_poses[*k].1, *b))
+            .collect();
+        let p = triangulate_views(&views)?;
+        let thr = 2.0 / self.focal();
+        let ok = views.iter().all(|(r, t, b)| {
+            let q = r * p + t;
+            q.z > 0.0 && ((q.x / q.z - b.x).powi(2) + (q.y / q.z - b.y).powi(2)).sqrt() < thr
+        });
+        let (first, last) = (views.first()?, views.last()?);
+        let centre = |(r, t): (&Mat3, &Vec3)| -(r.transpose() * t);
+        let ray0 = (p - centre((&first.0, &first.1))).normalize();
+        let ray1 = (p - centre((&last.0, &last.1))).normalize();
+        let parallax = ray0.dot(&ray1).clamp(-1.0, 1.0).acos().to_degrees();
+        (ok && parallax > self.cfg.min_triangulation_parallax_deg).then_some(p)
     }
 
     /// Drops landmarks that no keyframe of the local window observes: tracking matches only
@@ -443,6 +660,10 @@ impl Tracker {
         let keep_from = n.saturating_sub(self.cfg.local_ba_window.max(1));
         self.landmarks
             .retain(|_, lm| lm.obs.iter().any(|(k, _)| *k >= keep_from));
+        // a track not continued by the newest keyframe is over
+        let newest = n.saturating_sub(1);
+        self.tracks
+            .retain(|_, obs| obs.last().is_some_and(|(k, _)| *k >= newest));
     }
 
     /// Not enough for the two-view initialisation yet: the reference stays, this frame has no
@@ -572,19 +793,101 @@ impl Tracker {
             .iter()
             .map(|&(_, b, _)| bearing(&self.calib, &cur.keypoints[b]))
             .collect();
-        let est = solve_pnp_ransac(&pw, &bw, self.focal(), &self.cfg.pnp);
-        let Some(est) = est.filter(|e| e.inlier_count() >= self.cfg.min_tracked) else {
+        let est = solve_pnp_ransac(&pw, &bw, self.focal(), &self.cfg.pnp)
+            .filter(|e| e.inlier_count() >= self.cfg.min_tracked)
+            .or_else(|| {
+                // the keyframe's landmarks do not suffice: predict the pose with constant
+                // velocity and search the whole local map around it
+                let (r, t) = self.predict()?;
+                tracing::debug!(frame = input.index, "keyframe PnP failed: motion model");
+                Some(supermvo_geometry::pnp::PnpEstimate {
+                    r,
+                    t,
+                    inliers: vec![false; pw.len()],
+                })
+            });
+        let Some(est) = est else {
             return self.lost(input, cur, m.pairs.len());
         };
-        let (r, t) = (est.r, est.t);
+        // the local map: landmarks of the window that this keyframe does not carry
+        let mut taken = vec![false; cur.len()];
+        let mut skip = std::collections::BTreeSet::new();
+        for (k, &(_, b, id)) in with_lm.iter().enumerate() {
+            if est.inliers[k] {
+                taken[b] = true;
+                skip.insert(id);
+            }
+        }
+        // a prediction is coarser than a PnP pose: search twice as far
+        let predicted = est.inlier_count() == 0;
+        let radius = self.cfg.map_search_radius_px * if predicted { 2.0 } else { 1.0 };
+        let from_map = self.search_local_map(&cur, (&est.r, &est.t), &taken, &skip, radius);
+        // refine the pose on both sets, re-selecting inliers with the refined pose
+        let all_p: Vec<Vec3> = pw
+            .iter()
+            .copied()
+            .chain(from_map.iter().map(|(_, id)| self.landmarks[id].p))
+            .collect();
+        let all_b: Vec<Vec3> = bw
+            .iter()
+            .copied()
+            .chain(
+                from_map
+                    .iter()
+                    .map(|&(b, _)| bearing(&self.calib, &cur.keypoints[b])),
+            )
+            .collect();
+        let thr_sq = (self.cfg.pnp.threshold_px / self.focal()).powi(2);
+        let reproj_sq = |r: &Mat3, t: &Vec3, p: &Vec3, b: &Vec3| {
+            let q = r * p + t;
+            if q.z <= 0.0 {
+                f64::INFINITY
+            } else {
+                (q.x / q.z - b.x).powi(2) + (q.y / q.z - b.y).powi(2)
+            }
+        };
+        let (mut r, mut t) = (est.r, est.t);
+        if predicted {
+            // motion-model prediction: a PnP RANSAC over the local map's matches
+            let Some(e) = solve_pnp_ransac(&all_p, &all_b, self.focal(), &self.cfg.pnp)
+                .filter(|e| e.inlier_count() >= self.cfg.min_tracked)
+            else {
+                return self.lost(input, cur, m.pairs.len());
+            };
+            (r, t) = (e.r, e.t);
+        }
+        let mut inlier: Vec<bool> = est
+            .inliers
+            .iter()
+            .copied()
+            .chain(std::iter::repeat_n(false, from_map.len()))
+            .collect();
+        if !from_map.is_empty() {
+            for _ in 0..2 {
+                let sel: Vec<usize> = (0..all_p.len())
+                    .filter(|&i| reproj_sq(&r, &t, &all_p[i], &all_b[i]) < thr_sq)
+                    .collect();
+                if sel.len() < self.cfg.min_tracked {
+                    break;
+                }
+                let sp: Vec<Vec3> = sel.iter().map(|&i| all_p[i]).collect();
+                let sb: Vec<Vec3> = sel.iter().map(|&i| all_b[i]).collect();
+                (r, t) = supermvo_geometry::pnp::refine_pose(&r, &t, &sp, &sb, 10);
+            }
+            inlier = (0..all_p.len())
+                .map(|i| reproj_sq(&r, &t, &all_p[i], &all_b[i]) < thr_sq)
+                .collect();
+        }
+        let tracked = inlier.iter().filter(|&&x| x).count();
+        if tracked < self.cfg.min_tracked {
+            return self.lost(input, cur, m.pairs.len());
+        }
+        let map_inliers = inlier[pw.len()..].iter().filter(|&&x| x).count();
         if tracing::enabled!(tracing::Level::DEBUG) {
-            let mut errs: Vec<f64> = pw
+            let mut errs: Vec<f64> = all_p
                 .iter()
-                .zip(&bw)
-                .map(|(p, b)| {
-                    let q = r * p + t;
-                    ((q.x / q.z - b.x).powi(2) + (q.y / q.z - b.y).powi(2)).sqrt() * self.focal()
-                })
+                .zip(&all_b)
+                .map(|(p, b)| reproj_sq(&r, &t, p, b).sqrt() * self.focal())
                 .collect();
             errs.sort_by(f64::total_cmp);
             let median = errs.get(errs.len() / 2).copied().unwrap_or(f64::NAN);
@@ -592,14 +895,18 @@ impl Tracker {
                 frame = input.index,
                 matches = m.pairs.len(),
                 with_landmark = pw.len(),
-                inliers = est.inlier_count(),
+                keyframe_inliers = est.inlier_count(),
+                map_candidates = from_map.len(),
+                map_inliers,
                 reprojection_median_px = median,
                 "tracked"
             );
         }
+        let (lr, lt) = self.last_pose;
+        let rv = r * lr.transpose();
+        self.velocity = Some((rv, t - rv * lt));
         self.last_pose = (r, t);
         self.frames_since_keyframe += 1;
-        let tracked = est.inlier_count();
         let need_kf = tracked < self.cfg.keyframe_min_tracked
             || self.frames_since_keyframe >= self.cfg.max_frames_between_keyframes;
         if !need_kf {
@@ -614,38 +921,25 @@ impl Tracker {
             self.keyframe = Some(kf);
             return out;
         }
-        // new keyframe: keep the inlier landmarks, triangulate the other matches
+        // new keyframe: keep the inlier landmarks (from the keyframe and from the local
+        // map), triangulate the other matches
         let cur_id = self.new_keyframe_id(r, t);
         let mut landmark = vec![None; cur.len()];
-        let thr = 2.0 / self.focal();
-        for (k, &(_, b, id)) in with_lm.iter().enumerate() {
-            if !est.inliers[k] {
+        let observed = with_lm
+            .iter()
+            .map(|&(_, b, id)| (b, id))
+            .chain(from_map.iter().copied())
+            .zip(&inlier)
+            .filter(|(_, &ok)| ok)
+            .map(|(o, _)| o);
+        let mut used = std::collections::BTreeSet::new();
+        for (b, id) in observed {
+            if landmark[b].is_some() || !used.insert(id) {
                 continue;
             }
             landmark[b] = Some(id);
-            // add the observation and re-triangulate from all of them when every
-            // observation still reprojects within the threshold
             let obs_b = bearing(&self.calib, &cur.keypoints[b]);
-            let poses = &self.keyframe_poses;
-            let Some(lm) = self.landmarks.get_mut(&id) else {
-                continue;
-            };
-            lm.obs.push((cur_id, obs_b));
-            let views: Vec<(Mat3, Vec3, Vec3)> = lm
-                .obs
-                .iter()
-                .map(|(k, bo)| (poses[*k].0, poses[*k].1, *bo))
-                .collect();
-            if let Some(p) = triangulate_views(&views) {
-                let consistent = views.iter().all(|(ro, to, bo)| {
-                    let q = ro * p + to;
-                    q.z > 0.0
-                        && ((q.x / q.z - bo.x).powi(2) + (q.y / q.z - bo.y).powi(2)).sqrt() < thr
-                });
-                if consistent {
-                    lm.p = p;
-                }
-            }
+            self.observe_landmark(id, cur_id, obs_b, cur.descriptor(b));
         }
         let fresh: Vec<(usize, usize)> = m
             .pairs
@@ -679,6 +973,10 @@ impl Tracker {
             false,
         );
         let (r, t) = self.last_pose;
+        self.velocity = None;
+        self.landmarks.clear();
+        self.tracks.clear();
+        self.segment_start = self.keyframe_poses.len();
         self.set_reference(input.index, r, t, cur);
         self.frames_since_keyframe = 0;
         out

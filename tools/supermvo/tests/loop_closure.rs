@@ -59,12 +59,15 @@ fn urban_loop_is_closed_and_the_drift_drops() {
     let path = a["eval"]["reference_length_m"].as_f64().unwrap();
     let (after, before) = (ape(&a), ape(&b));
     eprintln!("urban-loop APE after Sim(3): {before:.3} m odometry only, {after:.3} m with loops, over {path:.0} m");
+    // With the local-map tracker the odometry alone drifts little on this loop (about
+    // 0.2 % of the path), so the loops must still lower the error, and the result must meet
+    // issue 7's target of 0.3 % of the path.
     assert!(
-        after < 0.5 * before,
+        after < 0.9 * before,
         "loop closure did not reduce the drift: {before:.3} -> {after:.3} m"
     );
     assert!(
-        after < 0.005 * path,
-        "APE {after:.3} m is over 0.5 % of {path:.0} m"
+        after < 0.003 * path,
+        "APE {after:.3} m is over 0.3 % of {path:.0} m"
     );
 }
