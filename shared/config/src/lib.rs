@@ -71,6 +71,21 @@ pub enum Frontend {
     Orb,
 }
 
+impl std::str::FromStr for Frontend {
+    type Err = String;
+
+    /// The front end of a name as the configuration spells it.
+    fn from_str(name: &str) -> Result<Self, String> {
+        match name {
+            "xfeat-lighterglue" => Ok(Self::XfeatLighterglue),
+            "orb" => Ok(Self::Orb),
+            other => Err(format!(
+                "front end '{other}' is not available; use xfeat-lighterglue or orb"
+            )),
+        }
+    }
+}
+
 /// `[pipeline]`: the VO pipeline, in process or as the multi-process daemon.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

@@ -155,7 +155,8 @@ impl Sequence {
     pub fn world_from_camera(&self, i: usize) -> (Matrix3<f64>, V3) {
         let t = self.time(i);
         let d = &self.preset.drive;
-        let (p, tan) = self.preset.scene.path.offset(d.s0 + d.speed * t, d.lateral);
+        let (p, tan) = self.preset.scene.path.offset(d.arc_length(t), d.lateral);
+        let pan = d.pan_at(t);
         let heading = tan.y.atan2(tan.x);
         let (sh, ch) = heading.sin_cos();
         let base = Matrix3::from_columns(&[
@@ -167,9 +168,10 @@ impl Sequence {
         let w = &self.wobble;
         let deg = std::f64::consts::PI / 180.0;
         let pitch = 0.3 * deg * (2.0 * std::f64::consts::PI * 0.7 * t + w[0]).sin();
-        let yaw = 0.25 * deg * (2.0 * std::f64::consts::PI * 0.3 * t + w[1]).sin();
+        let yaw = 0.25 * deg * (2.0 * std::f64::consts::PI * 0.3 * t + w[1]).sin() + pan;
         let roll = 0.2 * deg * (2.0 * std::f64::consts::PI * 0.5 * t + w[2]).sin();
-        let bounce = 0.015 * (2.0 * std::f64::consts::PI * 1.1 * t + w[3]).sin();
+        // (the bounce follows the moving time: a stopped car's camera only turns)
+        let bounce = 0.015 * (2.0 * std::f64::consts::PI * 1.1 * d.moving_time(t) + w[3]).sin();
         let r = base
             * Rotation3::from_axis_angle(&V3::x_axis(), pitch).into_inner()
             * Rotation3::from_axis_angle(&V3::y_axis(), yaw).into_inner()
@@ -225,7 +227,8 @@ impl Sequence {
 
     /// Length of the camera's path, metres.
     pub fn path_length(&self) -> f64 {
-        self.preset.drive.speed * self.time(self.frames - 1)
+        let d = &self.preset.drive;
+        d.speed.abs() * d.moving_time(self.time(self.frames - 1))
     }
 
     /// Centres of the painted dashes of the dashed lane lines, in the world frame (the

@@ -7,7 +7,13 @@ use crate::scene::{Material, Motion, Mover, Quad, RoadStyle, Scene, V2, V3};
 use std::f64::consts::{FRAC_PI_2, PI};
 
 /// The preset names, in the order `supermvo synth --help` lists them.
-pub const PRESETS: [&str; 4] = ["urban-loop", "highway", "dynamic", "lighting"];
+pub const PRESETS: [&str; 5] = [
+    "urban-loop",
+    "highway",
+    "dynamic",
+    "lighting",
+    "stop-and-pan",
+];
 
 /// How the camera is driven through a scene.
 #[derive(Debug, Clone, Copy)]
@@ -20,6 +26,46 @@ pub struct Drive {
     pub speed: f64,
     /// Camera height above the road, metres.
     pub height: f64,
+    /// A stop during which the camera only turns (pure rotation), if any.
+    pub pan: Option<Pan>,
+}
+
+/// The car stops and the camera pans about its own centre: yaw `degrees * sin(2 pi u)`
+/// for `u` from 0 to 1 over the stop (left, back through straight ahead, right, back).
+#[derive(Debug, Clone, Copy)]
+pub struct Pan {
+    /// Start of the stop, seconds.
+    pub start: f64,
+    /// Length of the stop, seconds.
+    pub duration: f64,
+    /// Largest yaw, degrees.
+    pub degrees: f64,
+}
+
+impl Drive {
+    /// Seconds spent moving by time `t`.
+    pub fn moving_time(&self, t: f64) -> f64 {
+        match self.pan {
+            Some(p) if t > p.start => t - (t - p.start).min(p.duration),
+            _ => t,
+        }
+    }
+
+    /// Arc length along the path at time `t`.
+    pub fn arc_length(&self, t: f64) -> f64 {
+        self.s0 + self.speed * self.moving_time(t)
+    }
+
+    /// Extra yaw of the pan at time `t` (radians; zero outside the stop).
+    pub fn pan_at(&self, t: f64) -> f64 {
+        match self.pan {
+            Some(p) if t >= p.start && t <= p.start + p.duration => {
+                let u = (t - p.start) / p.duration.max(1e-9);
+                p.degrees.to_radians() * (std::f64::consts::TAU * u).sin()
+            }
+            _ => 0.0,
+        }
+    }
 }
 
 /// Exposure over time.
@@ -53,6 +99,17 @@ pub fn preset(name: &str, seed: u64) -> Option<Preset> {
         "highway" => Some(highway(seed)),
         "dynamic" => Some(street(seed, "dynamic", true, Photometry::Steady)),
         "lighting" => Some(street(seed, "lighting", false, Photometry::Changing)),
+        "stop-and-pan" => {
+            // 5 s driving, a 5 s stop panning 35 degrees each way, then driving again.
+            let mut p = street(seed, "stop-and-pan", false, Photometry::Steady);
+            p.drive.pan = Some(Pan {
+                start: 5.0,
+                duration: 5.0,
+                degrees: 35.0,
+            });
+            p.default_frames = 160;
+            Some(p)
+        }
         _ => None,
     }
 }
@@ -241,6 +298,7 @@ fn urban_loop(seed: u64) -> Preset {
             lateral: -1.75,
             speed: 8.0,
             height: 1.65,
+            pan: None,
         },
         // 1.15 laps of the 303 m block at 0.8 m per frame: the start is seen again.
         default_frames: (1.15 * len / 0.8) as usize,
@@ -375,6 +433,7 @@ fn highway(seed: u64) -> Preset {
             lateral: -6.5,
             speed: 25.0,
             height: 1.65,
+            pan: None,
         },
         default_frames: 200,
         photometry: Photometry::Steady,
@@ -475,6 +534,7 @@ fn street(seed: u64, name: &'static str, traffic: bool, photometry: Photometry) 
             lateral: -1.75,
             speed: 8.0,
             height: 1.65,
+            pan: None,
         },
         default_frames: 200,
         photometry,

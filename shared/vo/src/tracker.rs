@@ -42,6 +42,9 @@ pub struct TrackerConfig {
     /// window that the keyframe does not carry are projected into the frame and matched to
     /// keypoints within this radius (pixels) by descriptor; 0 disables it.
     pub map_search_radius_px: f64,
+    /// Keyframes whose landmarks form the local map (landmarks seen by none of them are
+    /// dropped).
+    pub local_map_keyframes: usize,
     /// Largest descriptor distance accepted by the local-map search, normalised to [0, 1]:
     /// `1 - cos` for float descriptors, Hamming distance / 256 for ORB.
     pub map_search_max_distance: f32,
@@ -65,11 +68,30 @@ impl Default for TrackerConfig {
             local_ba_window: 6,
             map_search_radius_px: 10.0,
             map_search_max_distance: 0.25,
+            local_map_keyframes: 20,
             map_search_ratio: 0.9,
             ransac: RansacConfig::default(),
             pnp: PnpConfig::default(),
         }
     }
+}
+
+/// One local bundle adjustment: its size, cost (sum of squared normalised reprojection
+/// errors under the robust loss) and wall time including building the problem.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct BaStats {
+    /// Keyframes in the window (including the fixed ones).
+    pub keyframes: usize,
+    /// Landmarks.
+    pub points: usize,
+    /// Observations.
+    pub observations: usize,
+    /// Cost before.
+    pub cost_before: f64,
+    /// Cost after.
+    pub cost_after: f64,
+    /// Milliseconds.
+    pub ms: f64,
 }
 
 /// Tracking state of a frame.
@@ -162,8 +184,8 @@ struct Keyframe {
 pub struct Tracker {
     calib: Calibration,
     cfg: TrackerConfig,
-    /// The active map by landmark id: landmarks leave it once no keyframe of the local
-    /// window observes them (nothing can use them again), so memory stays flat on long runs.
+    /// The local map by landmark id: landmarks leave it once none of the last
+    /// `local_map_keyframes` keyframes observes them, so memory stays flat on long runs.
     landmarks: std::collections::BTreeMap<usize, Landmark>,
     next_landmark: usize,
     /// Pending tracks by id: keyframe observations of a point that has no landmark yet.
@@ -183,6 +205,8 @@ pub struct Tracker {
     /// Motion between the last two tracked frames, `T_last_prev` (rotation, translation):
     /// the constant-velocity prediction used when the keyframe matches fail.
     velocity: Option<(Mat3, Vec3)>,
+    /// The last local BA, until taken.
+    last_ba: Option<BaStats>,
     /// Scale of the map (median landmark depth at initialisation), to carry across
     /// re-initialisations.
     scale: Option<f64>,
@@ -238,6 +262,7 @@ impl Tracker {
             frames_since_keyframe: 0,
             last_pose: (Mat3::identity(), Vec3::zeros()),
             velocity: None,
+            last_ba: None,
             scale: None,
         }
     }
@@ -386,6 +411,7 @@ impl Tracker {
     /// Local bundle adjustment over the last `local_ba_window` keyframes (the two oldest fixed) and
     /// the landmarks they observe at least twice; writes the refined poses and points back.
     fn local_ba(&mut self) {
+        let started = std::time::Instant::now();
         let window = self.cfg.local_ba_window;
         let n = self.keyframe_poses.len();
         if window < 3 || n < 3 {
@@ -423,6 +449,14 @@ impl Tracker {
             huber: 2.0 / self.focal(),
         };
         let (c0, c1) = ba.solve(10);
+        let stats = BaStats {
+            keyframes: n - first,
+            points: point_ids.len(),
+            observations: ba.observations.len(),
+            cost_before: c0,
+            cost_after: c1,
+            ms: 0.0,
+        };
         tracing::debug!(
             keyframes = n - first,
             points = point_ids.len(),
@@ -441,6 +475,16 @@ impl Tracker {
             (kf.r, kf.t) = self.keyframe_poses[kf.id];
             self.last_pose = (kf.r, kf.t);
         }
+        self.last_ba = Some(BaStats {
+            ms: started.elapsed().as_secs_f64() * 1e3,
+            ..stats
+        });
+    }
+
+    /// What the last local bundle adjustment did, taken (for benchmarks and diagnostics:
+    /// `None` when no window was solved since the last call).
+    pub fn take_ba_stats(&mut self) -> Option<BaStats> {
+        self.last_ba.take()
     }
 
     fn focal(&self) -> f64 {
@@ -652,12 +696,12 @@ impl Tracker {
         (ok && parallax > self.cfg.min_triangulation_parallax_deg).then_some(p)
     }
 
-    /// Drops landmarks that no keyframe of the local window observes: tracking matches only
-    /// the current keyframe's landmarks and the local BA only the window's, so they cannot
-    /// be used again.
+    /// Drops landmarks that none of the last `local_map_keyframes` keyframes observes, so
+    /// memory stays flat on long runs; the rest form the local map that the search by
+    /// projection can find again (after a pan, a stop, an occlusion).
     fn prune_map(&mut self) {
         let n = self.keyframe_poses.len();
-        let keep_from = n.saturating_sub(self.cfg.local_ba_window.max(1));
+        let keep_from = n.saturating_sub(self.cfg.local_map_keyframes.max(1));
         self.landmarks
             .retain(|_, lm| lm.obs.iter().any(|(k, _)| *k >= keep_from));
         // a track not continued by the newest keyframe is over

@@ -52,6 +52,22 @@ enum BenchCommand {
         #[arg(long, default_value = "xfeat-lighterglue")]
         frontend: String,
     },
+    /// The VO back of the pipeline without the networks: features and matches of a sequence
+    /// are computed once, then the tracker (and the loop closer) replay them; medians per
+    /// frame and per local bundle-adjustment window beside the networks' own time.
+    Tracking {
+        /// Sequence directory (`.../sequences/NN`).
+        seq_dir: PathBuf,
+        /// Frames to use (from the first).
+        #[arg(long, default_value_t = 160)]
+        frames: usize,
+        /// Replays of the tracker over the recorded inputs.
+        #[arg(long, default_value_t = 3)]
+        repeats: usize,
+        /// Front end: xfeat-lighterglue or orb.
+        #[arg(long, default_value = "xfeat-lighterglue")]
+        frontend: String,
+    },
     /// XFeat extraction and LighterGlue matching on two consecutive frames.
     Frontend {
         /// First image; the second is the next frame (or the same image again).
@@ -101,6 +117,12 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             return Ok(());
         }
         BenchCommand::IpcEcho { name } => return supermvo_services::bench_ipc::echo(name),
+        BenchCommand::Tracking {
+            seq_dir,
+            frames,
+            repeats,
+            frontend,
+        } => return tracking(seq_dir, *frames, (*repeats).max(1), frontend),
         BenchCommand::Frontend {
             image_a,
             image_b,
@@ -296,5 +318,144 @@ fn matching(
     if let Some(p) = csv {
         std::fs::write(p, rows)?;
     }
+    Ok(())
+}
+
+/// One frame's recorded tracker input.
+struct Recorded {
+    meta: supermvo_vo::tracker::FrameMeta,
+    features: supermvo_inference::Features,
+    matches: Option<supermvo_inference::Matches>,
+    reference: Option<usize>,
+}
+
+fn quantile(v: &[f64], q: f64) -> f64 {
+    let mut v = v.to_vec();
+    v.sort_by(f64::total_cmp);
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v[((v.len() - 1) as f64 * q).round() as usize]
+}
+
+/// `supermvo bench tracking`: see [`BenchCommand::Tracking`].
+fn tracking(
+    seq_dir: &std::path::Path,
+    frames: usize,
+    repeats: usize,
+    frontend: &str,
+) -> Result<()> {
+    use supermvo_services::{features, matching, tracking::tracker_config};
+    use supermvo_vo::loops::{LoopCloser, LoopConfig};
+    use supermvo_vo::tracker::{close_loops, FrameMeta, Tracker};
+    let seq = supermvo_dataset::KittiSequence::open(seq_dir)?;
+    let cfg = supermvo_config::PipelineConfig {
+        frontend: frontend.parse().map_err(anyhow::Error::msg)?,
+        ..Default::default()
+    };
+    let n = frames.min(seq.images.len());
+    if n < 2 {
+        bail!("{}: needs at least 2 frames", seq_dir.display());
+    }
+    let (mut extractor, mut matcher) = (features::extractor(&cfg)?, matching::matcher(&cfg)?);
+    let mut tracker = Tracker::new(seq.calib, tracker_config(&cfg));
+    let mut recorded = Vec::with_capacity(n);
+    let (mut extract_ms, mut match_ms) = (Vec::new(), Vec::new());
+    for i in 0..n {
+        let image = GrayImage::load(&seq.images[i])?;
+        let s = Instant::now();
+        let cur = extractor.extract(&image)?;
+        extract_ms.push(s.elapsed().as_secs_f64() * 1e3);
+        let reference = tracker.reference().map(|(f, _)| f);
+        let matches = match tracker.reference() {
+            Some((_, r)) => {
+                let s = Instant::now();
+                let m = matcher.match_features(r, &cur)?;
+                match_ms.push(s.elapsed().as_secs_f64() * 1e3);
+                Some(m)
+            }
+            None => None,
+        };
+        let meta = FrameMeta {
+            index: i,
+            stamp: seq.times[i],
+        };
+        tracker.step(meta, cur.clone(), matches.as_ref());
+        recorded.push(Recorded {
+            meta,
+            features: cur,
+            matches,
+            reference,
+        });
+    }
+    let (mut step_ms, mut kf_ms, mut other_ms, mut ba_ms, mut loop_ms) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut ba_sizes = Vec::new();
+    for _ in 0..repeats {
+        let mut tracker = Tracker::new(seq.calib, tracker_config(&cfg));
+        let mut closer = LoopCloser::new(seq.calib, LoopConfig::default());
+        for r in &recorded {
+            if tracker.reference().map(|(f, _)| f) != r.reference {
+                bail!(
+                    "frame {}: the replayed tracker asks for another reference than the recorded run (not deterministic)",
+                    r.meta.index
+                );
+            }
+            let features = r.features.clone();
+            let s = Instant::now();
+            let out = tracker.step(r.meta, features, r.matches.as_ref());
+            let ms = s.elapsed().as_secs_f64() * 1e3;
+            step_ms.push(ms);
+            if out.keyframe {
+                &mut kf_ms
+            } else {
+                &mut other_ms
+            }
+            .push(ms);
+            if let Some(b) = tracker.take_ba_stats() {
+                ba_ms.push(b.ms);
+                ba_sizes.push((b.keyframes, b.points, b.observations));
+            }
+            let s = Instant::now();
+            close_loops(&mut closer, &mut tracker, &out);
+            loop_ms.push(s.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    let tracking_median = quantile(&step_ms, 0.5);
+    let networks_median = quantile(&extract_ms, 0.5) + quantile(&match_ms, 0.5);
+    let mean_of = |f: fn(&(usize, usize, usize)) -> usize| {
+        ba_sizes.iter().map(f).sum::<usize>() as f64 / ba_sizes.len().max(1) as f64
+    };
+    let result = serde_json::json!({
+        "sequence": seq_dir, "frames": n, "repeats": repeats, "frontend": frontend,
+        "tracking_ms_median": tracking_median,
+        "tracking_ms_p90": quantile(&step_ms, 0.9),
+        "tracking_keyframe_ms_median": quantile(&kf_ms, 0.5),
+        "tracking_other_ms_median": quantile(&other_ms, 0.5),
+        "ba_window_ms_median": quantile(&ba_ms, 0.5),
+        "ba_window_ms_p90": quantile(&ba_ms, 0.9),
+        "ba_windows": ba_ms.len() / repeats,
+        "ba_mean_keyframes": mean_of(|s| s.0),
+        "ba_mean_points": mean_of(|s| s.1),
+        "ba_mean_observations": mean_of(|s| s.2),
+        "loop_closer_ms_median": quantile(&loop_ms, 0.5),
+        "loop_closer_ms_p90": quantile(&loop_ms, 0.9),
+        "extraction_ms_median": quantile(&extract_ms, 0.5),
+        "matching_ms_median": quantile(&match_ms, 0.5),
+        "tracking_over_networks": tracking_median / networks_median,
+    });
+    outln!(
+        "tracking without the networks: median {:.2} ms per frame (keyframes {:.2}, others {:.2}); local BA window median {:.2} ms ({} windows, ~{:.0} points); loop closer median {:.2} ms; networks {:.1} ms per frame (tracking/networks = {:.3})",
+        tracking_median,
+        quantile(&kf_ms, 0.5),
+        quantile(&other_ms, 0.5),
+        quantile(&ba_ms, 0.5),
+        ba_ms.len() / repeats,
+        mean_of(|s| s.1),
+        quantile(&loop_ms, 0.5),
+        networks_median,
+        tracking_median / networks_median
+    );
+    outln!("{result}");
     Ok(())
 }

@@ -105,13 +105,7 @@ impl RunArgs {
             p.loop_closure = false;
         }
         if let Some(f) = &self.frontend {
-            p.frontend = match f.as_str() {
-                "xfeat-lighterglue" => supermvo_config::Frontend::XfeatLighterglue,
-                "orb" => supermvo_config::Frontend::Orb,
-                other => {
-                    bail!("front end '{other}' is not available; use xfeat-lighterglue or orb")
-                }
-            };
+            p.frontend = f.parse().map_err(anyhow::Error::msg)?;
         }
         if self.realtime {
             p.mode = IngestMode::Realtime;
