@@ -34,6 +34,11 @@ pub struct TrackerConfig {
     pub keyframe_min_tracked: usize,
     /// Minimum parallax angle (degrees) of a newly triangulated landmark.
     pub min_triangulation_parallax_deg: f64,
+    /// The same while tracking is weak (fewer than `keyframe_min_tracked` inliers): a wide
+    /// baseline gives unbiased depths, but a starving map must take what it can get.
+    pub weak_triangulation_parallax_deg: f64,
+    /// Minimum parallax angle (degrees) of the landmarks of a two-view initialisation.
+    pub min_init_parallax_deg: f64,
     /// New keyframe after at most this many frames.
     pub max_frames_between_keyframes: usize,
     /// Keyframes in the local bundle adjustment window (0 disables it).
@@ -42,6 +47,11 @@ pub struct TrackerConfig {
     /// window that the keyframe does not carry are projected into the frame and matched to
     /// keypoints within this radius (pixels) by descriptor; 0 disables it.
     pub map_search_radius_px: f64,
+    /// Local BA: observations of the window's points from older keyframes enter the
+    /// problem, those keyframes held fixed.
+    pub ba_anchors: bool,
+    /// Window keyframes held fixed when anchors are present (2 without anchors).
+    pub ba_fixed_with_anchors: usize,
     /// Keyframes whose landmarks form the local map (landmarks seen by none of them are
     /// dropped).
     pub local_map_keyframes: usize,
@@ -63,12 +73,16 @@ impl Default for TrackerConfig {
             min_init_landmarks: 80,
             min_tracked: 40,
             keyframe_min_tracked: 100,
-            min_triangulation_parallax_deg: 0.5,
+            min_triangulation_parallax_deg: 1.5,
+            weak_triangulation_parallax_deg: 1.0,
+            min_init_parallax_deg: 1.0,
             max_frames_between_keyframes: 3,
             local_ba_window: 6,
             map_search_radius_px: 10.0,
             map_search_max_distance: 0.25,
             local_map_keyframes: 20,
+            ba_anchors: true,
+            ba_fixed_with_anchors: 1,
             map_search_ratio: 0.9,
             ransac: RansacConfig::default(),
             pnp: PnpConfig::default(),
@@ -421,18 +435,33 @@ impl Tracker {
         if n - first < 3 {
             return;
         }
+        // Points seen in the window; their observations from older keyframes of this map
+        // enter too, with those keyframes held fixed as anchors (they carry the scale).
         let mut point_ids = Vec::new();
         let mut observations = Vec::new();
+        let mut slot: std::collections::BTreeMap<usize, usize> =
+            (first..n).enumerate().map(|(i, k)| (k, i)).collect();
+        let mut anchors = Vec::new();
         for (&id, lm) in self.landmarks.iter() {
-            let inside: Vec<&(usize, Vec3)> = lm.obs.iter().filter(|(k, _)| *k >= first).collect();
-            if inside.len() < 2 {
+            let in_window = lm.obs.iter().filter(|(k, _)| *k >= first).count();
+            let usable: Vec<&(usize, Vec3)> = lm
+                .obs
+                .iter()
+                .filter(|(k, _)| *k >= self.segment_start && (self.cfg.ba_anchors || *k >= first))
+                .collect();
+            if in_window < 1 || usable.len() < 2 {
                 continue;
             }
             let pi = point_ids.len();
             point_ids.push(id);
-            for (k, b) in inside {
+            for (k, b) in usable {
+                let next = slot.len();
+                let kf = *slot.entry(*k).or_insert_with(|| {
+                    anchors.push(*k);
+                    next
+                });
                 observations.push(crate::ba::Observation {
-                    kf: k - first,
+                    kf,
                     point: pi,
                     bearing: *b,
                 });
@@ -441,9 +470,19 @@ impl Tracker {
         if point_ids.len() < 20 {
             return;
         }
+        let window_fixed = if anchors.is_empty() {
+            2
+        } else {
+            self.cfg.ba_fixed_with_anchors
+        };
+        let mut poses = self.keyframe_poses[first..].to_vec();
+        poses.extend(anchors.iter().map(|&k| self.keyframe_poses[k]));
         let mut ba = crate::ba::LocalBa {
-            poses: self.keyframe_poses[first..].to_vec(),
-            fixed: (first..n).map(|k| k < first + 2).collect(),
+            poses,
+            fixed: (first..n)
+                .map(|k| k < first + window_fixed)
+                .chain(anchors.iter().map(|_| true))
+                .collect(),
             points: point_ids.iter().map(|id| self.landmarks[id].p).collect(),
             observations,
             huber: 2.0 / self.focal(),
@@ -465,7 +504,7 @@ impl Tracker {
             cost_after = c1,
             "local BA"
         );
-        self.keyframe_poses[first..].copy_from_slice(&ba.poses);
+        self.keyframe_poses[first..].copy_from_slice(&ba.poses[..n - first]);
         for (i, &id) in point_ids.iter().enumerate() {
             if let Some(lm) = self.landmarks.get_mut(&id) {
                 lm.p = ba.points[i];
@@ -526,7 +565,7 @@ impl Tracker {
             let ray_kf = p_kf.normalize();
             let ray_cur = (p_kf - (-(r_rel.transpose() * t_rel))).normalize();
             let parallax = ray_kf.dot(&ray_cur).clamp(-1.0, 1.0).acos().to_degrees();
-            if e1 < thr && e2 < thr && parallax > self.cfg.min_triangulation_parallax_deg {
+            if e1 < thr && e2 < thr && parallax > self.cfg.min_init_parallax_deg {
                 // world point: p_world = R_kf^T (p_kf - t_kf)
                 out.push((a, b, kf_r.transpose() * (p_kf - kf_t)));
             }
@@ -635,7 +674,7 @@ impl Tracker {
         (frame, cur_id): (usize, usize),
         (r, t): (Mat3, Vec3),
         mut landmark: Vec<Option<usize>>,
-        candidates: &[(usize, usize)],
+        (candidates, min_parallax_deg): (&[(usize, usize)], f64),
     ) {
         let mut track = vec![None; cur.len()];
         for &(a, b) in candidates {
@@ -651,7 +690,7 @@ impl Tracker {
                 }
             };
             obs.push((cur_id, bearing(&self.calib, &cur.keypoints[b])));
-            match self.triangulate_track(&obs) {
+            match self.triangulate_track(&obs, min_parallax_deg) {
                 Some(p) => landmark[b] = Some(self.add_landmark(p, obs, cur.descriptor(b))),
                 None => {
                     self.tracks.insert(id, obs);
@@ -677,7 +716,7 @@ impl Tracker {
     /// The world point of a track's keyframe observations when it lies in front of every
     /// view, reprojects within 2 px in each and has the configured parallax between the
     /// first and the last view.
-    fn triangulate_track(&self, obs: &[(usize, Vec3)]) -> Option<Vec3> {
+    fn triangulate_track(&self, obs: &[(usize, Vec3)], min_parallax_deg: f64) -> Option<Vec3> {
         let views: Vec<(Mat3, Vec3, Vec3)> = obs
             .iter()
             .map(|(k, b)| (self.keyframe_poses[*k].0, self.keyframe_poses[*k].1, *b))
@@ -693,7 +732,7 @@ impl Tracker {
         let ray0 = (p - centre((&first.0, &first.1))).normalize();
         let ray1 = (p - centre((&last.0, &last.1))).normalize();
         let parallax = ray0.dot(&ray1).clamp(-1.0, 1.0).acos().to_degrees();
-        (ok && parallax > self.cfg.min_triangulation_parallax_deg).then_some(p)
+        (ok && parallax > min_parallax_deg).then_some(p)
     }
 
     /// Drops landmarks that none of the last `local_map_keyframes` keyframes observes, so
@@ -808,7 +847,8 @@ impl Tracker {
         let t = r_rel * kf.t + t_rel;
         let cur_id = self.new_keyframe_id(r, t);
         let (keypoints, landmark) = (cur.len(), vec![None; cur.len()]);
-        self.insert_keyframe(&kf, cur, (input.index, cur_id), (r, t), landmark, &inl);
+        let init = (&inl[..], self.cfg.min_init_parallax_deg);
+        self.insert_keyframe(&kf, cur, (input.index, cur_id), (r, t), landmark, init);
         let counts = (m.pairs.len(), est.inlier_count());
         self.output(
             input,
@@ -992,7 +1032,13 @@ impl Tracker {
             .filter(|&(a, b)| kf.landmark[a].is_none() && landmark[b].is_none())
             .collect();
         let keypoints = cur.len();
-        self.insert_keyframe(&kf, cur, (input.index, cur_id), (r, t), landmark, &fresh);
+        let min_parallax = if tracked < self.cfg.keyframe_min_tracked {
+            self.cfg.weak_triangulation_parallax_deg
+        } else {
+            self.cfg.min_triangulation_parallax_deg
+        };
+        let fresh = (&fresh[..], min_parallax);
+        self.insert_keyframe(&kf, cur, (input.index, cur_id), (r, t), landmark, fresh);
         let counts = (m.pairs.len(), tracked);
         self.output(
             input,
