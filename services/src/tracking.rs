@@ -23,9 +23,24 @@ use supermvo_vo::tracker::{
 
 /// The tracker configuration the daemon and `supermvo run --mode inprocess` both use.
 pub fn tracker_config(cfg: &PipelineConfig) -> TrackerConfig {
-    TrackerConfig {
+    let base = TrackerConfig {
         local_ba_window: cfg.ba_window,
         ..TrackerConfig::default()
+    };
+    match cfg.frontend {
+        supermvo_config::Frontend::XfeatLighterglue => base,
+        // ORB's ratio-tested matches cluster near the focus of expansion (their median
+        // displacement stays under 10 px while the car drives 20 m on the synthetic
+        // streets) and thin out as the baseline grows, so ORB starts the two-view
+        // initialisation at 5 px and initialises and tracks with fewer matches; without this
+        // it never initialises.
+        supermvo_config::Frontend::Orb => TrackerConfig {
+            min_parallax_px: 5.0,
+            min_init_landmarks: 50,
+            min_tracked: 30,
+            keyframe_min_tracked: 80,
+            ..base
+        },
     }
 }
 

@@ -799,6 +799,12 @@ impl Tracker {
             .collect();
         disp.sort_by(f64::total_cmp);
         let parallax = disp.get(disp.len() / 2).copied().unwrap_or(0.0);
+        tracing::debug!(
+            frame = input.index,
+            matches = m.pairs.len(),
+            median_displacement_px = parallax,
+            "initialising"
+        );
         if parallax < self.cfg.min_parallax_px || m.pairs.len() < self.cfg.min_init_landmarks {
             return self.not_yet(input, kf, cur.len(), (m.pairs.len(), 0));
         }
