@@ -1,5 +1,12 @@
-//! The monocular tracker: two-view initialisation, PnP tracking against the last keyframe's
-//! landmarks, keyframes with triangulation of new landmarks, re-initialisation when lost.
+//! The monocular tracker: two-view initialisation; PnP tracking against the reference
+//! keyframe's landmarks followed by a search of the local map by projection (or, when the
+//! keyframe's landmarks fail, a constant-velocity prediction); keyframes whose unmatched
+//! matches extend pending tracks until they triangulate with enough parallax; a local
+//! bundle adjustment with older keyframes as fixed anchors; re-initialisation when lost.
+//!
+//! The tracker's own matching (the local-map search) is a descriptor comparison within a
+//! few pixels of a projection, done here because it needs the map; the networks' matches to
+//! the reference keyframe still come from outside.
 //!
 //! Frames: `T_cam_world` maps world points into the camera; outputs carry `T_world_cam`.
 //! The world frame is the first keyframe's camera; the scale is fixed by the first

@@ -3,43 +3,15 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
 mod common;
 
-fn report(dir: &std::path::Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
-}
-
 #[test]
 fn urban_loop_is_closed_and_the_drift_drops() {
     if !common::models_ready() {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
-    let root = tmp.path().join("synth");
-    let r = common::supermvo(&[
-        "synth",
-        "--preset",
-        "urban-loop",
-        "-q",
-        "--out",
-        root.to_str().unwrap(),
-    ]);
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-    let seq = root.join("sequences/urban-loop");
-    let (with, without) = (tmp.path().join("with"), tmp.path().join("without"));
-    for (out, extra) in [(&with, None), (&without, Some("--no-loop-closure"))] {
-        let mut args = vec![
-            "run",
-            seq.to_str().unwrap(),
-            "--mode",
-            "inprocess",
-            "-q",
-            "--out",
-            out.to_str().unwrap(),
-        ];
-        args.extend(extra);
-        let r = common::supermvo(&args);
-        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-    }
-    let (a, b) = (report(&with), report(&without));
+    let seq = common::synth(&tmp.path().join("synth"), "urban-loop");
+    let a = common::run_inprocess(&seq, &tmp.path().join("with"), &[]);
+    let b = common::run_inprocess(&seq, &tmp.path().join("without"), &["--no-loop-closure"]);
     let loops = a["loops"].as_array().unwrap();
     assert!(loops.len() >= 2, "no loop closed: {}", a["loops"]);
     // Every loop joins the second lap to the first: the query comes after one lap (303 m at

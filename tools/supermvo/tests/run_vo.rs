@@ -12,20 +12,8 @@ fn runs_deterministically_with_report_and_evaluation() {
     }
     let tmp = tempfile::tempdir().unwrap();
     let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
-    for out in [&a, &b] {
-        let r = common::supermvo(&[
-            "run",
-            seq.to_str().unwrap(),
-            "--mode",
-            "inprocess",
-            "--max-frames",
-            "25",
-            "-q",
-            "--out",
-            out.to_str().unwrap(),
-        ]);
-        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-    }
+    let report = common::run_inprocess(&seq, &a, &["--max-frames", "25"]);
+    common::run_inprocess(&seq, &b, &["--max-frames", "25"]);
     let ta = std::fs::read(a.join("trajectory.tum.txt")).unwrap();
     assert_eq!(
         ta,
@@ -33,8 +21,6 @@ fn runs_deterministically_with_report_and_evaluation() {
         "two runs must give bit-identical trajectories"
     );
     assert!(ta.len() > 100);
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(a.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["frames"], 25);
     assert!(report["estimated"].as_u64().unwrap() >= 15, "{report}");
     assert!(
@@ -185,28 +171,9 @@ fn pure_rotation_keeps_the_position_and_the_scale() {
     }
     let tmp = tempfile::tempdir().unwrap();
     let root = tmp.path().join("synth");
-    let r = common::supermvo(&[
-        "synth",
-        "--preset",
-        "stop-and-pan",
-        "-q",
-        "--out",
-        root.to_str().unwrap(),
-    ]);
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let seq = common::synth(&root, "stop-and-pan");
     let out = tmp.path().join("run");
-    let r = common::supermvo(&[
-        "run",
-        root.join("sequences/stop-and-pan").to_str().unwrap(),
-        "--mode",
-        "inprocess",
-        "-q",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let report = common::run_inprocess(&seq, &out, &[]);
     let frames = report["frames_detail"].as_array().unwrap();
     assert_eq!(frames.len(), 160, "every frame has a logged state");
     // every pose estimated is in the trajectory

@@ -124,3 +124,37 @@ pub fn models_ready() -> bool {
     }
     ok
 }
+
+/// Renders synthetic preset `preset` (default frames, seed 1) under `root`; returns the
+/// sequence directory.
+pub fn synth(root: &Path, preset: &str) -> PathBuf {
+    let r = supermvo(&[
+        "synth",
+        "--preset",
+        preset,
+        "-q",
+        "--out",
+        root.to_str().expect("utf-8 path"),
+    ]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    root.join("sequences").join(preset)
+}
+
+/// `supermvo run SEQ --mode inprocess -q --out OUT EXTRA...`, which must succeed; returns
+/// its report.
+pub fn run_inprocess(seq: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
+    let mut args = vec![
+        "run",
+        seq.to_str().expect("utf-8 path"),
+        "--mode",
+        "inprocess",
+        "-q",
+        "--out",
+        out.to_str().expect("utf-8 path"),
+    ];
+    args.extend(extra);
+    let r = supermvo(&args);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let text = std::fs::read_to_string(out.join("report.json")).expect("report.json");
+    serde_json::from_str(&text).expect("report.json is JSON")
+}
