@@ -83,8 +83,10 @@ pub struct Manifest {
     pub path_length_m: f64,
 }
 
-/// Bumped whenever the renderer's output for a given manifest changes.
-pub const RENDERER_VERSION: u32 = 1;
+/// Bumped whenever the renderer's output for a given manifest changes: a cached sequence is
+/// reused only when its manifest, this number included, is the same. (2: the anisotropic
+/// texture filtering, which version 1's caches predate.)
+pub const RENDERER_VERSION: u32 = 2;
 
 /// Where a sequence was written.
 #[derive(Debug, Clone)]

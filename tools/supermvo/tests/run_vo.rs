@@ -217,8 +217,7 @@ fn pure_rotation_keeps_the_position_and_the_scale() {
     assert!(worst_move < 0.02, "the camera drifted during the pan");
     assert!(worst_angle < 2.0, "the rotation was not followed");
     // the same scale after the stop: distance of frames 100..159 over 0..50, as in truth
-    // (measured 0.875: the usual monocular drift; a tracker that forgets the map during
-    // the pan restarts at 1.7)
+    // (measured 0.989; a tracker that forgets the map during the pan restarts at 1.7)
     let last = after.last().unwrap();
     let ratio = (last.2 - at(100).expect("frame 100 posed").2).norm() / driven;
     let true_ratio = (gt[last.0].2 - gt[100].2).norm() / true_driven;
