@@ -575,6 +575,38 @@ pub fn triangulate_views(views: &[(Mat3, Vec3, Vec3)]) -> Option<Vec3> {
     (h[3].abs() > 1e-12).then(|| Vec3::new(h[0] / h[3], h[1] / h[3], h[2] / h[3]))
 }
 
+/// A point from [`triangulate_checked`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Triangulated {
+    /// The point in the common (world) frame.
+    pub point: Vec3,
+    /// Angle between the rays to it from the first and the last camera centre, degrees.
+    pub parallax_deg: f64,
+}
+
+/// [`triangulate_views`], accepted only when the point lies in front of every view and
+/// reprojects within `max_error` (normalised image units, pixels / focal) in each; with the
+/// parallax between the first and the last view, for the caller's threshold.
+pub fn triangulate_checked(views: &[(Mat3, Vec3, Vec3)], max_error: f64) -> Option<Triangulated> {
+    let p = triangulate_views(views)?;
+    let fits = views.iter().all(|(r, t, b)| {
+        let q = r * p + t;
+        let (u, v) = (b.x / b.z, b.y / b.z);
+        q.z > 0.0 && ((q.x / q.z - u).powi(2) + (q.y / q.z - v).powi(2)).sqrt() < max_error
+    });
+    if !fits {
+        return None;
+    }
+    let (first, last) = (views.first()?, views.last()?);
+    let centre = |r: &Mat3, t: &Vec3| -(r.transpose() * t);
+    let ray0 = (p - centre(&first.0, &first.1)).normalize();
+    let ray1 = (p - centre(&last.0, &last.1)).normalize();
+    Some(Triangulated {
+        point: p,
+        parallax_deg: ray0.dot(&ray1).clamp(-1.0, 1.0).acos().to_degrees(),
+    })
+}
+
 /// Relative pose `T_cam2_cam1 = (R, t)` (with `|t| = 1`) from an essential matrix: of the
 /// four decompositions, the one with most inliers triangulated in front of both cameras
 /// (closer than `max_depth` baselines). Returns `(R, t, points in front)`.
@@ -625,6 +657,41 @@ pub fn recover_pose(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn checked_triangulation_rejects_points_behind_or_off_their_rays() {
+        let (r, t) = (Mat3::identity(), Vec3::new(-1.0, 0.0, 0.0));
+        let p = Vec3::new(0.5, 0.2, 4.0);
+        let view2 = |p: &Vec3| {
+            let q = r * p + t;
+            q / q.z
+        };
+        let good = [
+            (Mat3::identity(), Vec3::zeros(), p / p.z),
+            (r, t, view2(&p)),
+        ];
+        let tri = triangulate_checked(&good, 1e-6).unwrap();
+        assert!((tri.point - p).norm() < 1e-9);
+        // rays from (0,0,0) and (1,0,0) to p
+        let expect = p
+            .normalize()
+            .dot(&(p - Vec3::new(1.0, 0.0, 0.0)).normalize())
+            .acos()
+            .to_degrees();
+        assert!((tri.parallax_deg - expect).abs() < 1e-9);
+        // a point behind both cameras (where the rays' backward extensions meet) is rejected
+        let behind = -p;
+        let bad = [
+            (Mat3::identity(), Vec3::zeros(), behind / behind.z),
+            (r, t, view2(&behind)),
+        ];
+        assert!(triangulate_checked(&bad, 1e-6).is_none());
+        // an observation moved 10 px (focal 700) across the epipolar line (the baseline is
+        // along x, so vertically) fails a 2 px threshold
+        let mut off = good;
+        off[1].2.y += 10.0 / 700.0;
+        assert!(triangulate_checked(&off, 2.0 / 700.0).is_none());
+    }
 
     #[test]
     fn degenerate_samples_return_promptly() {

@@ -16,8 +16,8 @@
 
 use nalgebra::{DMatrix, SVector};
 use supermvo_dataset::Calibration;
-use supermvo_geometry::essential::triangulate;
-use supermvo_geometry::{umeyama, Pose, Vec3};
+use supermvo_geometry::essential::triangulate_checked;
+use supermvo_geometry::{umeyama, Mat3, Pose, Vec3};
 use supermvo_inference::Features;
 use supermvo_optim::lie::{LieGroup, Sim3};
 use supermvo_optim::{Between, Kernel, Lm, LmParams, PoseGraph, Prior};
@@ -404,23 +404,11 @@ impl LoopCloser {
                     self.bearing(&cur.keypoints[a]),
                     self.bearing(&other.keypoints[b]),
                 );
-                let Some(p) = triangulate(&r, &t, &x1, &x2) else {
-                    continue;
-                };
-                let q = r * p + t;
-                if p.z <= 0.0 || q.z <= 0.0 {
-                    continue;
-                }
-                let e1 = ((p.x / p.z - x1.x).powi(2) + (p.y / p.z - x1.y).powi(2)).sqrt();
-                let e2 = ((q.x / q.z - x2.x).powi(2) + (q.y / q.z - x2.y).powi(2)).sqrt();
-                let centre_other = -(r.transpose() * t);
-                let parallax = p
-                    .normalize()
-                    .dot(&(p - centre_other).normalize())
-                    .clamp(-1.0, 1.0)
-                    .acos();
-                if e1 < thr && e2 < thr && parallax.to_degrees() > 1.0 {
-                    points[a] = Some(p);
+                let views = [(Mat3::identity(), Vec3::zeros(), x1), (r, t, x2)];
+                let accepted =
+                    triangulate_checked(&views, thr).filter(|tri| tri.parallax_deg > 1.0);
+                if let Some(tri) = accepted {
+                    points[a] = Some(tri.point);
                 }
             }
         }

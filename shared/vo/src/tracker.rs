@@ -22,7 +22,7 @@
 use crate::stage::Stage;
 use supermvo_dataset::{Calibration, GrayImage};
 use supermvo_geometry::essential::{
-    find_essential, recover_pose, triangulate, triangulate_views, RansacConfig,
+    find_essential, recover_pose, triangulate_checked, RansacConfig,
 };
 use supermvo_geometry::pnp::{solve_pnp_ransac, PnpConfig};
 use supermvo_geometry::{Mat3, Pose, Vec3};
@@ -314,14 +314,8 @@ impl Tracker {
             .iter()
             .map(|(k, bo)| (poses[*k].0, poses[*k].1, *bo))
             .collect();
-        if let Some(p) = triangulate_views(&views) {
-            let consistent = views.iter().all(|(ro, to, bo)| {
-                let q = ro * p + to;
-                q.z > 0.0 && ((q.x / q.z - bo.x).powi(2) + (q.y / q.z - bo.y).powi(2)).sqrt() < thr
-            });
-            if consistent {
-                lm.p = p;
-            }
+        if let Some(tri) = triangulate_checked(&views, thr) {
+            lm.p = tri.point;
         }
     }
 
@@ -559,22 +553,13 @@ impl Tracker {
                 bearing(&self.calib, &kf_keypoints[a]),
                 bearing(&self.calib, &cur.keypoints[b]),
             );
-            let Some(p_kf) = triangulate(&r_rel, &t_rel, &x1, &x2) else {
+            let views = [(Mat3::identity(), Vec3::zeros(), x1), (r_rel, t_rel, x2)];
+            let Some(tri) = triangulate_checked(&views, thr) else {
                 continue;
             };
-            let p_cur = r_rel * p_kf + t_rel;
-            if p_kf.z <= 0.0 || p_cur.z <= 0.0 {
-                continue;
-            }
-            let e1 = ((p_kf.x / p_kf.z - x1.x).powi(2) + (p_kf.y / p_kf.z - x1.y).powi(2)).sqrt();
-            let e2 =
-                ((p_cur.x / p_cur.z - x2.x).powi(2) + (p_cur.y / p_cur.z - x2.y).powi(2)).sqrt();
-            let ray_kf = p_kf.normalize();
-            let ray_cur = (p_kf - (-(r_rel.transpose() * t_rel))).normalize();
-            let parallax = ray_kf.dot(&ray_cur).clamp(-1.0, 1.0).acos().to_degrees();
-            if e1 < thr && e2 < thr && parallax > self.cfg.min_init_parallax_deg {
+            if tri.parallax_deg > self.cfg.min_init_parallax_deg {
                 // world point: p_world = R_kf^T (p_kf - t_kf)
-                out.push((a, b, kf_r.transpose() * (p_kf - kf_t)));
+                out.push((a, b, kf_r.transpose() * (tri.point - kf_t)));
             }
         }
         out
@@ -728,18 +713,9 @@ impl Tracker {
             .iter()
             .map(|(k, b)| (self.keyframe_poses[*k].0, self.keyframe_poses[*k].1, *b))
             .collect();
-        let p = triangulate_views(&views)?;
-        let thr = 2.0 / self.focal();
-        let ok = views.iter().all(|(r, t, b)| {
-            let q = r * p + t;
-            q.z > 0.0 && ((q.x / q.z - b.x).powi(2) + (q.y / q.z - b.y).powi(2)).sqrt() < thr
-        });
-        let (first, last) = (views.first()?, views.last()?);
-        let centre = |(r, t): (&Mat3, &Vec3)| -(r.transpose() * t);
-        let ray0 = (p - centre((&first.0, &first.1))).normalize();
-        let ray1 = (p - centre((&last.0, &last.1))).normalize();
-        let parallax = ray0.dot(&ray1).clamp(-1.0, 1.0).acos().to_degrees();
-        (ok && parallax > min_parallax_deg).then_some(p)
+        triangulate_checked(&views, 2.0 / self.focal())
+            .filter(|tri| tri.parallax_deg > min_parallax_deg)
+            .map(|tri| tri.point)
     }
 
     /// Drops landmarks that none of the last `local_map_keyframes` keyframes observes, so
