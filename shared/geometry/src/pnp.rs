@@ -133,7 +133,9 @@ pub fn epnp(points_world: &[Vec3], bearings: &[Vec3]) -> Option<(Mat3, Vec3)> {
     Some((sim.rotation_matrix(), sim.translation))
 }
 
-fn reprojection_sq(r: &Mat3, t: &Vec3, p: &Vec3, b: &Vec3) -> f64 {
+/// Squared reprojection error, in normalised image units, of world point `p` under
+/// `T_cam_world = (r, t)` against bearing `b`; infinite for a point not in front.
+pub fn reprojection_sq(r: &Mat3, t: &Vec3, p: &Vec3, b: &Vec3) -> f64 {
     let q = r * p + t;
     if q.z <= 1e-9 {
         return f64::INFINITY;

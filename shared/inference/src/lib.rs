@@ -51,6 +51,22 @@ impl Features {
     }
 }
 
+/// Normalised distance between two descriptors of one front end, in [0, 1]: `1 - cos` for
+/// float (L2-normalised) descriptors, the Hamming distance / 256 for ORB's 256 bits stored
+/// as [`orb::ORB_WORDS`] bit-cast words.
+pub fn descriptor_distance(a: &[f32], b: &[f32]) -> f32 {
+    if a.len() == orb::ORB_WORDS {
+        let bits: u32 = a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| (x.to_bits() ^ y.to_bits()).count_ones())
+            .sum();
+        bits as f32 / 256.0
+    } else {
+        1.0 - a.iter().zip(b).map(|(x, y)| x * y).sum::<f32>()
+    }
+}
+
 /// Matches between two feature sets.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Matches {

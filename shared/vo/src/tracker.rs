@@ -173,21 +173,6 @@ struct Landmark {
     desc: Vec<f32>,
 }
 
-/// Normalised distance between two descriptors of one front end: `1 - cos` for float
-/// (L2-normalised) descriptors, the Hamming distance / 256 for ORB's bit-cast words.
-fn descriptor_distance(a: &[f32], b: &[f32]) -> f32 {
-    if a.len() == supermvo_inference::orb::ORB_WORDS {
-        let bits: u32 = a
-            .iter()
-            .zip(b)
-            .map(|(x, y)| (x.to_bits() ^ y.to_bits()).count_ones())
-            .sum();
-        bits as f32 / 256.0
-    } else {
-        1.0 - a.iter().zip(b).map(|(x, y)| x * y).sum::<f32>()
-    }
-}
-
 struct Keyframe {
     id: usize,
     /// Frame index of the keyframe.
@@ -389,7 +374,8 @@ impl Tracker {
                         if (kp[0] as f64 - u).hypot(kp[1] as f64 - v) > radius {
                             continue;
                         }
-                        let d = descriptor_distance(&lm.desc, cur.descriptor(i));
+                        let d =
+                            supermvo_inference::descriptor_distance(&lm.desc, cur.descriptor(i));
                         if d < best.0 {
                             second = best.0;
                             best = (d, i);
@@ -911,14 +897,7 @@ impl Tracker {
             )
             .collect();
         let thr_sq = (self.cfg.pnp.threshold_px / self.focal()).powi(2);
-        let reproj_sq = |r: &Mat3, t: &Vec3, p: &Vec3, b: &Vec3| {
-            let q = r * p + t;
-            if q.z <= 0.0 {
-                f64::INFINITY
-            } else {
-                (q.x / q.z - b.x).powi(2) + (q.y / q.z - b.y).powi(2)
-            }
-        };
+        let reproj_sq = supermvo_geometry::pnp::reprojection_sq;
         let (mut r, mut t) = (est.r, est.t);
         if predicted {
             // motion-model prediction: a PnP RANSAC over the local map's matches
