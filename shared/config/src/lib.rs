@@ -129,6 +129,14 @@ pub struct PipelineConfig {
     /// Recognise revisited places and correct the trajectory (and the tracker's map) with a
     /// Sim(3) pose graph of keyframes.
     pub loop_closure: bool,
+    /// LighterGlue point pruning (LightGlue's `width_confidence`): points the network rates
+    /// unmatchable leave after each layer. In (0, 1), or -1 to run every point through every
+    /// layer.
+    pub width_confidence: f64,
+    /// LighterGlue early stopping (LightGlue's `depth_confidence`): the remaining layers are
+    /// skipped once this fraction of the points is confident. In (0, 1), or -1 to run every
+    /// layer.
+    pub depth_confidence: f64,
 }
 
 impl Default for PipelineConfig {
@@ -150,6 +158,8 @@ impl Default for PipelineConfig {
             loops: 1,
             features_extra_latency_ms: 0,
             loop_closure: true,
+            width_confidence: 0.95,
+            depth_confidence: -1.0,
         }
     }
 }
@@ -192,6 +202,18 @@ impl PipelineConfig {
                 value: self.speed.to_string(),
                 allowed: "must be in (0, 100]".into(),
             });
+        }
+        for (key, v) in [
+            ("width_confidence", self.width_confidence),
+            ("depth_confidence", self.depth_confidence),
+        ] {
+            if !(v == -1.0 || (v > 0.0 && v < 1.0)) {
+                return Err(ConfigError::OutOfRange {
+                    key: format!("pipeline.{key}"),
+                    value: v.to_string(),
+                    allowed: "must be in (0, 1), or -1 to switch it off".into(),
+                });
+            }
         }
         range("top_k", self.top_k, 64, 8192)?;
         range("threads", self.threads, 1, 64)?;
@@ -346,6 +368,22 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("pipeline.name"), "{err}");
+        for bad in ["1.5", "0.0", "-0.5"] {
+            let err = Config::from_toml(
+                &format!("[pipeline]\ndepth_confidence = {bad}\n"),
+                Path::new("c.toml"),
+            )
+            .unwrap_err()
+            .to_string();
+            assert!(err.contains("pipeline.depth_confidence"), "{err}");
+        }
+        let cfg = Config::from_toml(
+            "[pipeline]\nwidth_confidence = -1\ndepth_confidence = 0.95\n",
+            Path::new("c.toml"),
+        )
+        .unwrap();
+        assert_eq!(cfg.pipeline.width_confidence, -1.0);
+        assert_eq!(cfg.pipeline.depth_confidence, 0.95);
     }
 
     #[test]

@@ -1,10 +1,10 @@
 //! `supermvo bench frontend`: per-call timings of the learned front end (medians).
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
 use std::path::PathBuf;
 use std::time::Instant;
-use supermvo_inference::lighterglue::{LightGlue, LightGlueConfig};
+use supermvo_inference::lighterglue::{normalize_keypoints, LightGlue, LightGlueConfig};
 use supermvo_inference::xfeat::{resize_bilinear, XFeat, XFeatConfig};
 use supermvo_inference::{models, Extractor, GrayImage, Matcher};
 
@@ -80,6 +80,10 @@ enum BenchCommand {
         /// ONNX Runtime intra-op threads.
         #[arg(long, default_value_t = 2)]
         threads: usize,
+        /// Write the matcher's inputs (normalised keypoints and descriptors at each keypoint
+        /// count, raw little-endian f32) here, so another runtime can be timed on the same data.
+        #[arg(long)]
+        dump: Option<PathBuf>,
     },
 }
 
@@ -99,7 +103,7 @@ fn median_ms(mut f: impl FnMut() -> Result<()>, runs: usize) -> Result<f64> {
 
 /// Runs `supermvo bench`; prints one JSON object of medians in milliseconds.
 pub fn run(args: &BenchArgs) -> Result<()> {
-    let (image_a, image_b, runs, threads) = match &args.command {
+    let (image_a, image_b, runs, threads, dump) = match &args.command {
         BenchCommand::Ipc { samples } => {
             let exe = std::env::current_exe()?;
             let rows = supermvo_services::bench_ipc::run(&exe, (*samples).max(10))?;
@@ -128,7 +132,8 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             image_b,
             runs,
             threads,
-        } => (image_a, image_b, runs, threads),
+            dump,
+        } => (image_a, image_b, runs, threads, dump),
         BenchCommand::Matching {
             sequences,
             top_k,
@@ -177,6 +182,29 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             ..Default::default()
         },
     )?;
+    // the same model with pruning switched off: the peer the pruned runs are compared with
+    let mut lg_full = LightGlue::new(
+        &models::model_path("lighterglue"),
+        "lighterglue",
+        LightGlueConfig {
+            threads: *threads,
+            width_confidence: -1.0,
+            ..Default::default()
+        },
+    )?;
+    // and with early stopping on (LightGlue's depth_confidence 0.95) as well as pruning
+    let mut lg_depth = LightGlue::new(
+        &models::model_path("lighterglue"),
+        "lighterglue",
+        LightGlueConfig {
+            threads: *threads,
+            depth_confidence: 0.95,
+            ..Default::default()
+        },
+    )?;
+    if let Some(dir) = dump {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
     for k in [1024usize, 2048] {
         let mut x = XFeat::new(
             &models::model_path("xfeat"),
@@ -188,13 +216,62 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         )?;
         let (fa, fb) = (x.extract(&a)?, x.extract(&b)?);
         result.insert(format!("keypoints_{k}"), (fa.len().min(fb.len())).into());
+        if let Some(dir) = dump {
+            let raw = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+            for (name, data) in [
+                ("kpts0", normalize_keypoints(&fa)),
+                ("kpts1", normalize_keypoints(&fb)),
+                ("desc0", fa.descriptors.clone()),
+                ("desc1", fb.descriptors.clone()),
+            ] {
+                let path = dir.join(format!("lighterglue_{k}_{name}.f32"));
+                std::fs::write(&path, raw(&data))
+                    .with_context(|| format!("cannot write {}", path.display()))?;
+            }
+            result.insert(format!("dim_{k}"), fa.dim.into());
+            result.insert(
+                format!("sizes_{k}"),
+                serde_json::json!([fa.len(), fb.len()]),
+            );
+        }
+        let kept = lg.assignment(&fa, &fb)?;
+        result.insert(
+            format!("lighterglue_{k}_kept"),
+            serde_json::json!([kept.kept0.len(), kept.kept1.len()]),
+        );
         result.insert(
             format!("lighterglue_{k}_network_ms"),
-            median_ms(|| Ok(lg.log_assignment(&fa, &fb).map(|_| ())?), *runs)?.into(),
+            median_ms(|| Ok(lg.assignment(&fa, &fb).map(|_| ())?), *runs)?.into(),
+        );
+        result.insert(
+            format!("lighterglue_{k}_network_unpruned_ms"),
+            median_ms(|| Ok(lg_full.assignment(&fa, &fb).map(|_| ())?), *runs)?.into(),
+        );
+        result.insert(
+            format!("lighterglue_{k}_early_stop_layers"),
+            lg_depth.assignment(&fa, &fb)?.layers.into(),
+        );
+        result.insert(
+            format!("lighterglue_{k}_network_early_stop_ms"),
+            median_ms(|| Ok(lg_depth.assignment(&fa, &fb).map(|_| ())?), *runs)?.into(),
         );
         result.insert(
             format!("lighterglue_{k}_match_ms"),
             median_ms(|| Ok(lg.match_features(&fa, &fb).map(|_| ())?), *runs)?.into(),
+        );
+        let (full, pruned, early) = (
+            lg_full.match_features(&fa, &fb)?,
+            lg.match_features(&fa, &fb)?,
+            lg_depth.match_features(&fa, &fb)?,
+        );
+        let common = |m: &supermvo_inference::Matches| {
+            m.pairs.iter().filter(|p| full.pairs.contains(p)).count()
+        };
+        result.insert(
+            format!("lighterglue_{k}_matches"),
+            serde_json::json!({"pruned": pruned.pairs.len(), "unpruned": full.pairs.len(),
+                "common": common(&pruned), "early_stop": early.pairs.len(),
+                "early_stop_common": common(&early)}),
         );
     }
     result.insert("input_size".into(), serde_json::json!([w, h]));
