@@ -72,6 +72,56 @@ fn runtime_missing_or_wrong() {
     }
 }
 
+/// A library that answers ONNX Runtime's version query as 1.16.3 does: `OrtGetApiBase`
+/// returns a table whose `GetApi` has no table for a newer API and whose
+/// `GetVersionString` says "1.16.3" (what an old libonnxruntime.so found through
+/// ORT_DYLIB_PATH does), built with the C compiler that tools/setup.sh installs.
+#[test]
+fn runtime_too_old() {
+    let Some(img) = frame() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let src = dir.path().join("old_ort.c");
+    std::fs::write(
+        &src,
+        "typedef struct { const void *(*get_api)(unsigned); const char *(*version)(void); } ApiBase;\n\
+         static const void *get_api(unsigned v) { (void)v; return 0; }\n\
+         static const char *version(void) { return \"1.16.3\"; }\n\
+         static const ApiBase base = { get_api, version };\n\
+         const ApiBase *OrtGetApiBase(void) { return &base; }\n",
+    )
+    .unwrap();
+    let lib = dir.path().join("libonnxruntime.so.1.16.3");
+    let built = Command::new("cc")
+        .args(["-shared", "-fPIC", "-o"])
+        .arg(&lib)
+        .arg(&src)
+        .status();
+    if !matches!(built, Ok(s) if s.success()) {
+        assert!(
+            std::env::var("SUPERMVO_REQUIRE_SHARED").as_deref() != Ok("1"),
+            "no C compiler: run tools/setup.sh"
+        );
+        eprintln!("SKIP: no C compiler to build the stand-in library");
+        return;
+    }
+    let (ok, err) = features(
+        &[("ORT_DYLIB_PATH", lib.to_str().unwrap())],
+        &[img.to_str().unwrap()],
+    );
+    assert!(!ok);
+    assert!(
+        err.contains("cannot use ONNX Runtime")
+            && err.contains("but got '1.16.3'")
+            && err.contains("supermvo models fetch onnxruntime"),
+        "{err}"
+    );
+    assert_eq!(
+        err.lines().filter(|l| !l.trim().is_empty()).count(),
+        1,
+        "one error line: {err}"
+    );
+}
+
 #[test]
 fn model_missing_corrupt_or_wrong_interface() {
     let (Some(img), Some(_)) = (frame(), cache_models()) else {
