@@ -279,3 +279,11 @@ pub fn receive_features(
     }
     Ok(())
 }
+
+/// The inference crate's device for the configuration's.
+pub fn device(d: supermvo_config::Device) -> supermvo_inference::runtime::Device {
+    match d {
+        supermvo_config::Device::Cpu => supermvo_inference::runtime::Device::Cpu,
+        supermvo_config::Device::Cuda => supermvo_inference::runtime::Device::Cuda,
+    }
+}

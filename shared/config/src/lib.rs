@@ -60,6 +60,18 @@ pub enum IngestMode {
     Realtime,
 }
 
+/// Where the learned front end's networks run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Device {
+    /// ONNX Runtime's CPU execution provider.
+    #[default]
+    Cpu,
+    /// ONNX Runtime's CUDA execution provider (`supermvo models fetch onnxruntime-gpu`, an
+    /// NVIDIA GPU, CUDA 13 and cuDNN 9); the CPU, with a warning, where it cannot be used.
+    Cuda,
+}
+
 /// Keypoint extractor and matcher.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Frontend {
@@ -105,6 +117,8 @@ pub struct PipelineConfig {
     pub top_k: usize,
     /// ONNX Runtime intra-op threads per network, [1, 64].
     pub threads: usize,
+    /// Where the networks run: "cpu" or "cuda".
+    pub device: Device,
     /// Feature-extraction worker processes taking alternate frames, [1, 8].
     pub features_workers: usize,
     /// Keyframes in the local bundle-adjustment window (0 disables it), [0, 30].
@@ -148,6 +162,7 @@ impl Default for PipelineConfig {
             speed: 1.0,
             top_k: 1024,
             threads: 2,
+            device: Device::Cpu,
             features_workers: 1,
             ba_window: 6,
             max_restarts: 5,

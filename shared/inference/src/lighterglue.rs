@@ -9,7 +9,7 @@
 //! stopping), and return `kept0`/`kept1`, the original indices of the rows and columns that
 //! survived pruning (matches are mapped back through them), and `layers`, how many ran.
 
-use crate::runtime::open_session;
+use crate::runtime::{open_session_on, Device};
 use crate::{Features, InferenceError, Matcher, Matches};
 use std::path::Path;
 
@@ -26,6 +26,8 @@ pub struct LightGlueConfig {
     /// matchability is not above `1 - width_confidence` are dropped. 0.95 is the reference
     /// LighterGlue's setting; -1 disables pruning. Ignored by models exported without it.
     pub width_confidence: f32,
+    /// Where the network runs (CUDA falls back to the CPU, with a warning, when unusable).
+    pub device: Device,
     /// Early stopping as LightGlue's `depth_confidence`: after each layer, the remaining
     /// layers are skipped once more than this fraction of all keypoints have a confident
     /// token; -1 (the reference LighterGlue's setting) runs every layer. Ignored by models
@@ -41,6 +43,7 @@ impl Default for LightGlueConfig {
             threads: 2,
             width_confidence: 0.95,
             depth_confidence: -1.0,
+            device: Device::Cpu,
         }
     }
 }
@@ -54,6 +57,7 @@ pub struct LightGlue {
     /// The model has adaptive width and depth (the `min_matchability` and
     /// `depth_confidence` inputs and the `kept` outputs).
     adaptive: bool,
+    device: Device,
 }
 
 /// A log assignment over the keypoints that survived pruning.
@@ -138,8 +142,9 @@ fn tensor(shape: [usize; 3], data: &[f32]) -> ort::Result<ort::value::TensorRef<
 impl LightGlue {
     /// Opens a matcher model; `name` is used in messages (`lighterglue`, ...).
     pub fn new(model: &Path, name: &str, cfg: LightGlueConfig) -> Result<Self, InferenceError> {
-        crate::runtime::init(None)?;
-        let session = open_session(model, name, cfg.threads, &INPUTS, &OUTPUTS)?;
+        crate::runtime::init_for(None, cfg.device)?;
+        let (session, device) =
+            open_session_on(model, name, cfg.threads, cfg.device, &INPUTS, &OUTPUTS)?;
         let has = |names: &[&str], actual: &[&str]| -> Vec<bool> {
             names.iter().map(|n| actual.contains(n)).collect()
         };
@@ -166,7 +171,13 @@ impl LightGlue {
             cfg,
             name: name.to_string(),
             adaptive,
+            device,
         })
+    }
+
+    /// The device the network runs on (the CPU when CUDA was asked for but is unusable).
+    pub fn device(&self) -> Device {
+        self.device
     }
 
     /// Whether the model has LightGlue's adaptive width (pruning) and depth (early stopping).

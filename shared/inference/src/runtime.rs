@@ -21,6 +21,27 @@ pub fn cache_dir() -> PathBuf {
     home.join(".cache").join("supermvo")
 }
 
+/// Where the networks run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Device {
+    /// ONNX Runtime's CPU execution provider.
+    #[default]
+    Cpu,
+    /// ONNX Runtime's CUDA execution provider (the `onnxruntime-gpu` build and an NVIDIA GPU
+    /// with CUDA 13 and cuDNN 9 libraries); sessions fall back to the CPU, with a warning,
+    /// where it cannot be used.
+    Cuda,
+}
+
+impl std::fmt::Display for Device {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Device::Cpu => "CPU",
+            Device::Cuda => "CUDA",
+        })
+    }
+}
+
 /// Where `supermvo models fetch onnxruntime` puts the library.
 pub fn default_library_path() -> PathBuf {
     cache_dir()
@@ -29,13 +50,28 @@ pub fn default_library_path() -> PathBuf {
         .join(format!("libonnxruntime.so.{ORT_VERSION}"))
 }
 
+/// Where `supermvo models fetch onnxruntime-gpu` puts the GPU build of the library.
+pub fn gpu_library_path() -> PathBuf {
+    cache_dir()
+        .join("onnxruntime-gpu")
+        .join(ORT_VERSION)
+        .join(format!("libonnxruntime.so.{ORT_VERSION}"))
+}
+
 /// The library to load: `explicit`, else `ORT_DYLIB_PATH`, else the cached copy.
 pub fn resolve_library(explicit: Option<&Path>) -> PathBuf {
+    resolve_library_for(explicit, Device::Cpu)
+}
+
+/// As [`resolve_library`], preferring the cached GPU build when `device` is CUDA and it has
+/// been fetched.
+pub fn resolve_library_for(explicit: Option<&Path>, device: Device) -> PathBuf {
     if let Some(p) = explicit {
         return p.to_path_buf();
     }
     match std::env::var_os("ORT_DYLIB_PATH") {
         Some(p) if !p.is_empty() => PathBuf::from(p),
+        _ if device == Device::Cuda && gpu_library_path().is_file() => gpu_library_path(),
         _ => default_library_path(),
     }
 }
@@ -45,7 +81,12 @@ static LOADED: OnceLock<Result<(PathBuf, ort::environment::Environment), String>
 /// Loads ONNX Runtime once per process. Later calls return the first outcome, whatever
 /// path they name (a process can hold only one runtime).
 pub fn init(explicit: Option<&Path>) -> Result<PathBuf, InferenceError> {
-    let path = resolve_library(explicit);
+    init_for(explicit, Device::Cpu)
+}
+
+/// As [`init`], choosing the library for `device` (see [`resolve_library_for`]).
+pub fn init_for(explicit: Option<&Path>, device: Device) -> Result<PathBuf, InferenceError> {
+    let path = resolve_library_for(explicit, device);
     let outcome = LOADED.get_or_init(|| {
         if !path.is_file() {
             return Err(format!("missing:{}", path.display()));
@@ -72,7 +113,8 @@ pub fn init(explicit: Option<&Path>) -> Result<PathBuf, InferenceError> {
     }
 }
 
-/// Opens an ONNX model with `threads` intra-op threads, checking its input and output names.
+/// Opens an ONNX model on the CPU with `threads` intra-op threads, checking its input and
+/// output names.
 pub fn open_session(
     path: &Path,
     name: &str,
@@ -80,6 +122,58 @@ pub fn open_session(
     inputs: &[&str],
     outputs: &[&str],
 ) -> Result<ort::session::Session, InferenceError> {
+    open_session_on(path, name, threads, Device::Cpu, inputs, outputs).map(|(s, _)| s)
+}
+
+/// Registers the CUDA execution provider on `builder`, or says why it cannot be used.
+fn with_cuda(
+    builder: ort::session::builder::SessionBuilder,
+) -> (ort::session::builder::SessionBuilder, Result<(), String>) {
+    use ort::ep::ExecutionProvider;
+    match ort::ep::CUDA::is_available() {
+        Ok(true) => {}
+        Ok(false) => {
+            return (
+                builder,
+                Err(format!(
+                    "the ONNX Runtime at {} was built without it (run 'supermvo models fetch onnxruntime-gpu')",
+                    loaded_library().display()
+                )),
+            )
+        }
+        Err(e) => return (builder, Err(e.to_string())),
+    }
+    match builder.with_execution_providers([ort::ep::CUDA::default().build().error_on_failure()]) {
+        Ok(b) => (b, Ok(())),
+        Err(e) => {
+            let message = format!(
+                "{} (it needs an NVIDIA GPU and the CUDA 13 and cuDNN 9 libraries on the library path)",
+                e.to_string().trim_end()
+            );
+            (e.recover(), Err(message))
+        }
+    }
+}
+
+/// The library [`init`] loaded (or would load).
+fn loaded_library() -> PathBuf {
+    match LOADED.get() {
+        Some(Ok((p, _))) => p.clone(),
+        _ => resolve_library(None),
+    }
+}
+
+/// Opens an ONNX model on `device` (CUDA falls back to the CPU, with a warning naming the
+/// reason, where it cannot be used), checking its input and output names. Returns the
+/// session and the device it runs on.
+pub fn open_session_on(
+    path: &Path,
+    name: &str,
+    threads: usize,
+    device: Device,
+    inputs: &[&str],
+    outputs: &[&str],
+) -> Result<(ort::session::Session, Device), InferenceError> {
     if !path.is_file() {
         return Err(InferenceError::ModelMissing {
             path: path.to_path_buf(),
@@ -106,14 +200,32 @@ pub fn open_session(
         name: name.to_string(),
         message: e.to_string(),
     };
-    let session = ort::session::Session::builder(env)
+    let builder = ort::session::Session::builder(env)
         .map_err(corrupt)?
         .with_intra_threads(threads.max(1))
         .map_err(|e| corrupt(e.into()))?
         .with_inter_threads(1)
-        .map_err(|e| corrupt(e.into()))?
-        .commit_from_file(path)
-        .map_err(corrupt)?;
+        .map_err(|e| corrupt(e.into()))?;
+    let (mut builder, used) = match device {
+        Device::Cpu => (builder, Device::Cpu),
+        Device::Cuda => match with_cuda(builder) {
+            (b, Ok(())) => (b, Device::Cuda),
+            (b, Err(why)) => {
+                tracing::warn!(
+                    "{name}: CUDA was asked for but cannot be used: {why}; running on the CPU"
+                );
+                (b, Device::Cpu)
+            }
+        },
+    };
+    let session = builder.commit_from_file(path).map_err(corrupt)?;
+    match used {
+        Device::Cpu => tracing::info!(
+            "{name}: running on the CPU ({} intra-op threads)",
+            threads.max(1)
+        ),
+        Device::Cuda => tracing::info!("{name}: running on CUDA (device 0)"),
+    }
     let found_in: Vec<String> = session
         .inputs()
         .iter()
@@ -134,5 +246,5 @@ pub fn open_session(
             found: format!("inputs {found_in:?}, outputs {found_out:?}"),
         });
     }
-    Ok(session)
+    Ok((session, used))
 }

@@ -11,7 +11,7 @@
 //! 5. the `top_k` best (stable order), descriptors sampled bicubically from the
 //!    L2-normalised dense map and L2-normalised again; coordinates scaled back.
 
-use crate::runtime::open_session;
+use crate::runtime::{open_session_on, Device};
 use crate::{Extractor, Features, GrayImage, InferenceError};
 use std::path::Path;
 
@@ -24,6 +24,8 @@ pub struct XFeatConfig {
     pub detection_threshold: f32,
     /// ONNX Runtime intra-op threads.
     pub threads: usize,
+    /// Where the network runs (CUDA falls back to the CPU, with a warning, when unusable).
+    pub device: Device,
 }
 
 impl Default for XFeatConfig {
@@ -32,6 +34,7 @@ impl Default for XFeatConfig {
             top_k: 2048,
             detection_threshold: 0.05,
             threads: 2,
+            device: Device::Cpu,
         }
     }
 }
@@ -41,6 +44,7 @@ impl Default for XFeatConfig {
 pub struct XFeat {
     session: ort::session::Session,
     cfg: XFeatConfig,
+    device: Device,
 }
 
 /// Raw network outputs for one image (channel-major, `h = H/8`, `w = W/8`).
@@ -62,9 +66,19 @@ const OUTPUTS: [&str; 3] = ["descriptors", "keypoint_logits", "reliability"];
 impl XFeat {
     /// Opens `model` (an `xfeat.onnx` exported by `supermvo models fetch xfeat`).
     pub fn new(model: &Path, cfg: XFeatConfig) -> Result<Self, InferenceError> {
-        crate::runtime::init(None)?;
-        let session = open_session(model, "xfeat", cfg.threads, &INPUTS, &OUTPUTS)?;
-        Ok(Self { session, cfg })
+        crate::runtime::init_for(None, cfg.device)?;
+        let (session, device) =
+            open_session_on(model, "xfeat", cfg.threads, cfg.device, &INPUTS, &OUTPUTS)?;
+        Ok(Self {
+            session,
+            cfg,
+            device,
+        })
+    }
+
+    /// The device the network runs on (the CPU when CUDA was asked for but is unusable).
+    pub fn device(&self) -> Device {
+        self.device
     }
 
     /// Runs the network on an image already sized to multiples of 32, values in [0, 1].

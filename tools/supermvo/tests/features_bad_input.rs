@@ -167,3 +167,45 @@ fn empty_or_tiny_image() {
         "{err}"
     );
 }
+
+/// `--device cuda` with the CPU build of ONNX Runtime: one warning saying why and what to
+/// fetch, then the same keypoints as on the CPU.
+#[test]
+fn cuda_without_a_gpu_runtime_falls_back_to_the_cpu() {
+    let Some(img) = frame() else { return };
+    let Some((lib, _)) = cache_models() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let run = |device: &str| {
+        let json = dir.path().join(format!("{device}.json"));
+        let out = Command::new(env!("CARGO_BIN_EXE_supermvo"))
+            .args(["features", "--top-k", "256", "--device", device, "--json"])
+            .arg(&json)
+            .arg(&img)
+            .env("ORT_DYLIB_PATH", &lib)
+            .output()
+            .unwrap();
+        let (stdout, stderr) = (
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        );
+        assert!(out.status.success(), "{stderr}");
+        (stdout, stderr, std::fs::read(&json).unwrap())
+    };
+    let (out_cpu, err_cpu, cpu) = run("cpu");
+    let (out_cuda, err_cuda, cuda) = run("cuda");
+    assert!(
+        out_cpu.contains("xfeat on CPU") && !err_cpu.contains("CUDA"),
+        "{err_cpu}"
+    );
+    assert!(out_cuda.contains("xfeat on CPU"), "{out_cuda}");
+    assert!(
+        err_cuda.contains("CUDA was asked for but cannot be used")
+            && err_cuda.contains("built without it")
+            && err_cuda.contains("supermvo models fetch onnxruntime-gpu")
+            && err_cuda.contains("running on the CPU"),
+        "{err_cuda}"
+    );
+    assert_eq!(cpu, cuda, "the fallback computes the same keypoints");
+}
