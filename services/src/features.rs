@@ -8,6 +8,7 @@ use supermvo_config::{Frontend, PipelineConfig};
 use supermvo_dataset::GrayImage;
 use supermvo_inference::models;
 use supermvo_inference::orb::{Orb, OrbConfig};
+use supermvo_inference::superpoint::{SuperPoint, SuperPointConfig};
 use supermvo_inference::xfeat::{XFeat, XFeatConfig};
 use supermvo_inference::Extractor;
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
@@ -20,6 +21,15 @@ pub fn extractor(cfg: &PipelineConfig) -> Result<Box<dyn Extractor + Send>> {
         Frontend::XfeatLighterglue => Box::new(XFeat::new(
             &models::model_path("xfeat"),
             XFeatConfig {
+                top_k: cfg.top_k,
+                threads: cfg.threads,
+                device: crate::common::device(cfg.device),
+                ..Default::default()
+            },
+        )?),
+        Frontend::SuperpointSuperglue => Box::new(SuperPoint::new(
+            &models::model_path("superpoint"),
+            SuperPointConfig {
                 top_k: cfg.top_k,
                 threads: cfg.threads,
                 device: crate::common::device(cfg.device),

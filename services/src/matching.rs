@@ -12,6 +12,7 @@ use std::time::Duration;
 use supermvo_config::{Frontend, PipelineConfig};
 use supermvo_inference::lighterglue::{LightGlue, LightGlueConfig};
 use supermvo_inference::orb::OrbMatcher;
+use supermvo_inference::superglue::{SuperGlue, SuperGlueConfig};
 use supermvo_inference::{models, Features, Matcher};
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
 use supermvo_messages::iceoryx2::prelude::*;
@@ -30,6 +31,14 @@ pub fn matcher(cfg: &PipelineConfig) -> Result<Box<dyn Matcher + Send>> {
                 device: crate::common::device(cfg.device),
                 width_confidence: cfg.width_confidence as f32,
                 depth_confidence: cfg.depth_confidence as f32,
+                ..Default::default()
+            },
+        )?),
+        Frontend::SuperpointSuperglue => Box::new(SuperGlue::new(
+            &models::model_path("superglue"),
+            SuperGlueConfig {
+                threads: cfg.threads,
+                device: crate::common::device(cfg.device),
                 ..Default::default()
             },
         )?),

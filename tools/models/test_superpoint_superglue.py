@@ -202,7 +202,9 @@ def check_superglue(label, sd, rng, session, check, failures):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cache", default=cache_dir(), help="supermvo's cache (onnxruntime's wheel, Python packages)")
-    ap.parse_args()
+    ap.add_argument("--write", metavar="DIR", help="also write the random-weight superpoint.onnx and superglue.onnx "
+                    "(18 layers) to DIR/models, for plumbing tests of the Rust front end")
+    args = ap.parse_args()
     import onnxruntime as ort
     sys.path.insert(0, HERE)
     import superglue_onnx
@@ -230,7 +232,8 @@ def main():
     sd = random_state_dict(superpoint_onnx.shapes(), rng, 1.6)
     sd_read = sd
     image = rng.uniform(0, 1, (48, 64)).astype(np.float32)
-    semi, desc = session(superpoint_onnx.build(sd_read)).run(["scores_logits", "descriptors"], {"image": image[None, None]})
+    superpoint_model = superpoint_onnx.build(sd_read)
+    semi, desc = session(superpoint_model).run(["scores_logits", "descriptors"], {"image": image[None, None]})
     ref_semi, ref_desc = superpoint_reference({k: v.astype(np.float64) for k, v in sd.items()}, image)
     check("SuperPoint detector logits", semi[0], ref_semi, 1e-4, 1e-4)
     check("SuperPoint descriptors", desc[0], ref_desc, 1e-5, 1e-4)
@@ -239,8 +242,16 @@ def main():
     # weights, where a wrong head split or message path changes the output by far more;
     # 37 and 29 keypoints, 20 of them seen in both sets
     for label, layers, scale in (("18 layers", 18, 0.5), ("2 layers", 2, 1.0)):
-        check_superglue(label, random_state_dict(superglue_onnx.shapes(layers=layers), rng, scale,
-                                                 sharp=("attn.proj.0", "attn.proj.1")), rng, session, check, failures)
+        sg = random_state_dict(superglue_onnx.shapes(layers=layers), rng, scale, sharp=("attn.proj.0", "attn.proj.1"))
+        check_superglue(label, sg, rng, session, check, failures)
+        if layers == 18:
+            superglue_model = superglue_onnx.build(sg)
+    if args.write:
+        import onnx
+        os.makedirs(os.path.join(args.write, "models"), exist_ok=True)
+        onnx.save(superpoint_model, os.path.join(args.write, "models", "superpoint.onnx"))
+        onnx.save(superglue_model, os.path.join(args.write, "models", "superglue.onnx"))
+        print(f"[test] random-weight superpoint.onnx and superglue.onnx written to {args.write}/models")
     if failures:
         sys.exit(f"[test] FAILED: {', '.join(failures)}")
     print("[test] SuperPoint and SuperGlue exports match the reference forward passes")

@@ -81,6 +81,10 @@ pub enum Frontend {
     /// ORB keypoints, brute-force Hamming matching.
     #[serde(rename = "orb")]
     Orb,
+    /// SuperPoint keypoints, SuperGlue matching (the seed paper's pair; needs the official
+    /// weights, exported with `supermvo models fetch superpoint|superglue --weights PATH`).
+    #[serde(rename = "superpoint-superglue")]
+    SuperpointSuperglue,
 }
 
 impl std::str::FromStr for Frontend {
@@ -91,8 +95,9 @@ impl std::str::FromStr for Frontend {
         match name {
             "xfeat-lighterglue" => Ok(Self::XfeatLighterglue),
             "orb" => Ok(Self::Orb),
+            "superpoint-superglue" => Ok(Self::SuperpointSuperglue),
             other => Err(format!(
-                "front end '{other}' is not available; use xfeat-lighterglue or orb"
+                "front end '{other}' is not available; use xfeat-lighterglue, orb or superpoint-superglue"
             )),
         }
     }

@@ -22,7 +22,7 @@ pub enum InferenceError {
         wanted: &'static str,
     },
     /// A model file is missing.
-    #[error("model file {path} not found; run 'supermvo models fetch {name}'")]
+    #[error("model file {path} not found; run 'supermvo models fetch {name}{}'", weights_hint(.name))]
     ModelMissing {
         /// Expected path.
         path: PathBuf,
@@ -62,4 +62,14 @@ pub enum InferenceError {
         /// Runtime message.
         message: String,
     },
+}
+
+/// What `supermvo models fetch NAME` needs besides the name: the local weights file for the
+/// models whose official weights cannot be downloaded.
+fn weights_hint(name: &str) -> &'static str {
+    match name {
+        "superpoint" => " --weights /path/to/superpoint_v1.pth",
+        "superglue" => " --weights /path/to/superglue_outdoor.pth",
+        _ => "",
+    }
 }

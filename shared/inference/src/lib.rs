@@ -14,6 +14,8 @@ pub mod lighterglue;
 pub mod models;
 pub mod orb;
 pub mod runtime;
+pub mod superglue;
+pub mod superpoint;
 pub mod xfeat;
 
 pub use error::InferenceError;

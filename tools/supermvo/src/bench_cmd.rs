@@ -48,7 +48,7 @@ enum BenchCommand {
         /// Write per-pair rows (seq, frame, matches, inliers) as CSV here.
         #[arg(long)]
         csv: Option<PathBuf>,
-        /// Front end: xfeat-lighterglue or orb.
+        /// Front end: xfeat-lighterglue, orb or superpoint-superglue.
         #[arg(long, default_value = "xfeat-lighterglue")]
         frontend: String,
     },
@@ -64,7 +64,7 @@ enum BenchCommand {
         /// Replays of the tracker over the recorded inputs.
         #[arg(long, default_value_t = 3)]
         repeats: usize,
-        /// Front end: xfeat-lighterglue or orb.
+        /// Front end: xfeat-lighterglue, orb or superpoint-superglue.
         #[arg(long, default_value = "xfeat-lighterglue")]
         frontend: String,
     },
@@ -301,32 +301,14 @@ fn matching(
     use supermvo_dataset::KittiSequence;
     use supermvo_geometry::essential::{find_essential, RansacConfig};
     use supermvo_geometry::Vec3;
-    let (mut xfeat, mut lg): (Box<dyn Extractor>, Box<dyn Matcher>) = match frontend {
-        "xfeat-lighterglue" => (
-            Box::new(XFeat::new(
-                &models::model_path("xfeat"),
-                XFeatConfig {
-                    top_k,
-                    ..Default::default()
-                },
-            )?),
-            Box::new(LightGlue::new(
-                &models::model_path("lighterglue"),
-                "lighterglue",
-                LightGlueConfig::default(),
-            )?),
-        ),
-        "orb" => (
-            Box::new(supermvo_inference::orb::Orb::new(
-                supermvo_inference::orb::OrbConfig {
-                    top_k,
-                    ..Default::default()
-                },
-            )),
-            Box::new(supermvo_inference::orb::OrbMatcher::default()),
-        ),
-        other => bail!("unknown front end '{other}'; use xfeat-lighterglue or orb"),
+    // the front end exactly as the pipeline builds it
+    let pipeline = supermvo_config::PipelineConfig {
+        frontend: frontend.parse().map_err(anyhow::Error::msg)?,
+        top_k,
+        ..Default::default()
     };
+    let mut xfeat = supermvo_services::features::extractor(&pipeline)?;
+    let mut lg = supermvo_services::matching::matcher(&pipeline)?;
     let ransac = RansacConfig {
         threshold_px,
         confidence,
