@@ -16,38 +16,28 @@ loop is unrolled.
 """
 import math
 
+import os
+import sys
+
 import numpy as np
 import onnx
-from onnx import TensorProto, helper, numpy_helper
+from onnx import TensorProto, helper
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import lightglue_onnx  # noqa: E402
 
 BN_EPS = 1e-5
 
 
-class _G:
-    def __init__(self, sd, prefix):
-        self.sd, self.prefix = sd, prefix
-        self.nodes, self.inits, self.n = [], [], 0
-
-    def has(self, key):
-        return self.prefix + key in self.sd
+class _G(lightglue_onnx._G):
+    """The graph builder of the LightGlue exporter, reading weights in float64 so batch
+    norms fold without rounding twice."""
 
     def w(self, key):
         k = self.prefix + key
         if k not in self.sd:
             raise KeyError(f"weight '{k}' missing from the checkpoint (is it SuperGlue?)")
         return np.asarray(self.sd[k], np.float64)
-
-    def c(self, arr, dtype=np.float32):
-        self.n += 1
-        name = f"c{self.n}"
-        self.inits.append(numpy_helper.from_array(np.asarray(arr, dtype=dtype), name))
-        return name
-
-    def op(self, op, inputs, out=None, **attrs):
-        self.n += 1
-        out = out or f"{op.lower()}_{self.n}"
-        self.nodes.append(helper.make_node(op, inputs, [out], name=f"n{self.n}_{op}", **attrs))
-        return out
 
     def conv1(self, x, key, bn=None):
         """A 1x1 Conv1d on [1, N, C_in] -> [1, N, C_out], with an optional following batch norm folded in."""

@@ -15,10 +15,27 @@ fn runtime_library() -> PathBuf {
     home.join("onnxruntime/1.31.1/libonnxruntime.so.1.31.1")
 }
 
-/// `supermvo ARGS` with the model cache at `cache` (ONNX Runtime from the usual cache).
-fn run_with_cache(cache: &std::path::Path, args: &[&str]) -> std::process::Output {
+/// `supermvo run` of KITTI 00's first frames through the SuperPoint + SuperGlue front end,
+/// with the model cache at `cache` (ONNX Runtime from the usual cache); output in
+/// `cache/out`.
+fn run_spsg(
+    cache: &std::path::Path,
+    seq: &std::path::Path,
+    extra: &[&str],
+) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_supermvo"))
-        .args(args)
+        .arg("run")
+        .arg(seq)
+        .args([
+            "--mode",
+            "inprocess",
+            "-q",
+            "--frontend",
+            "superpoint-superglue",
+        ])
+        .arg("--out")
+        .arg(cache.join("out"))
+        .args(extra)
         .env("SUPERMVO_CACHE", cache)
         .env("ORT_DYLIB_PATH", runtime_library())
         .output()
@@ -34,23 +51,7 @@ fn without_the_exported_weights_the_run_says_how_to_export_them() {
         return;
     }
     let cache = tempfile::tempdir().unwrap();
-    let out = cache.path().join("out");
-    let r = run_with_cache(
-        cache.path(),
-        &[
-            "run",
-            seq.to_str().unwrap(),
-            "--mode",
-            "inprocess",
-            "-q",
-            "--frontend",
-            "superpoint-superglue",
-            "--max-frames",
-            "3",
-            "--out",
-            out.to_str().unwrap(),
-        ],
-    );
+    let r = run_spsg(cache.path(), &seq, &["--max-frames", "3"]);
     let err = String::from_utf8_lossy(&r.stderr);
     assert!(!r.status.success());
     assert!(!err.contains("panicked"), "{err}");
@@ -83,25 +84,8 @@ fn random_weight_models_run_through_the_pipeline() {
         String::from_utf8_lossy(&made.stdout),
         String::from_utf8_lossy(&made.stderr)
     );
+    let r = run_spsg(cache.path(), &seq, &["--top-k", "256", "--max-frames", "4"]);
     let out = cache.path().join("out");
-    let r = run_with_cache(
-        cache.path(),
-        &[
-            "run",
-            seq.to_str().unwrap(),
-            "--mode",
-            "inprocess",
-            "-q",
-            "--frontend",
-            "superpoint-superglue",
-            "--top-k",
-            "256",
-            "--max-frames",
-            "4",
-            "--out",
-            out.to_str().unwrap(),
-        ],
-    );
     let err = String::from_utf8_lossy(&r.stderr);
     assert!(r.status.success(), "{err}");
     let report: serde_json::Value =
