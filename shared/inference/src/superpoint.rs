@@ -94,31 +94,13 @@ pub fn postprocess(
                 (logits[c * cells + idx] - m).exp() / sum;
         }
     }
-    // non-maximum suppression: a keypoint is the maximum of its (2r+1)^2 window
-    let r = cfg.nms_radius;
-    let mut rowmax = vec![0.0f32; hh * ww];
-    for y in 0..hh {
-        for x in 0..ww {
-            let (a, b) = (x.saturating_sub(r), (x + r).min(ww - 1));
-            rowmax[y * ww + x] = heat[y * ww + a..=y * ww + b]
-                .iter()
-                .copied()
-                .fold(f32::NEG_INFINITY, f32::max);
-        }
-    }
+    let keep = simple_nms(&heat, ww, hh, cfg.nms_radius);
     let mut kept: Vec<(f32, usize, usize)> = Vec::new();
     let b = cfg.border;
     for y in b..hh.saturating_sub(b) {
-        let (y0, y1) = (y.saturating_sub(r), (y + r).min(hh - 1));
         for x in b..ww.saturating_sub(b) {
             let v = heat[y * ww + x];
-            if v <= cfg.detection_threshold {
-                continue;
-            }
-            let local = (y0..=y1)
-                .map(|yy| rowmax[yy * ww + x])
-                .fold(f32::NEG_INFINITY, f32::max);
-            if v == local {
+            if keep[y * ww + x] && v > cfg.detection_threshold {
                 kept.push((v, x, y));
             }
         }
@@ -165,6 +147,58 @@ pub fn postprocess(
         out.scores.push(s);
     }
     out
+}
+
+/// Maximum over the `(2r+1)^2` window around each pixel (windows clipped at the borders).
+fn max_filter(map: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
+    let mut rows = vec![0.0f32; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let (a, b) = (x.saturating_sub(r), (x + r).min(w - 1));
+            rows[y * w + x] = map[y * w + a..=y * w + b]
+                .iter()
+                .copied()
+                .fold(f32::NEG_INFINITY, f32::max);
+        }
+    }
+    let mut out = vec![0.0f32; w * h];
+    for y in 0..h {
+        let (a, b) = (y.saturating_sub(r), (y + r).min(h - 1));
+        for x in 0..w {
+            out[y * w + x] = (a..=b)
+                .map(|yy| rows[yy * w + x])
+                .fold(f32::NEG_INFINITY, f32::max);
+        }
+    }
+    out
+}
+
+/// SuperPoint's non-maximum suppression as MagicLeap's reference does it: the local maxima
+/// of `(2r+1)^2` windows, then twice more the maxima among the pixels farther than `r` from
+/// every point kept so far (so a point whose only stronger neighbour was itself suppressed
+/// survives).
+fn simple_nms(heat: &[f32], w: usize, h: usize, r: usize) -> Vec<bool> {
+    let peaks = |map: &[f32]| -> Vec<bool> {
+        let m = max_filter(map, w, h, r);
+        map.iter().zip(&m).map(|(v, m)| v == m).collect()
+    };
+    let mut keep = peaks(heat);
+    for _ in 0..2 {
+        let near: Vec<f32> = keep.iter().map(|&k| if k { 1.0 } else { 0.0 }).collect();
+        let suppressed: Vec<bool> = max_filter(&near, w, h, r)
+            .iter()
+            .map(|&v| v > 0.0)
+            .collect();
+        let rest: Vec<f32> = heat
+            .iter()
+            .zip(&suppressed)
+            .map(|(&v, &s)| if s { 0.0 } else { v })
+            .collect();
+        for ((k, new), s) in keep.iter_mut().zip(peaks(&rest)).zip(&suppressed) {
+            *k |= new && !s;
+        }
+    }
+    keep
 }
 
 impl Extractor for SuperPoint {
@@ -231,6 +265,20 @@ mod tests {
         assert!(f.scores[0] > 0.99);
         assert_eq!(f.dim, dim);
         assert!((f.descriptor(0)[1] - 1.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn nms_keeps_a_point_whose_stronger_neighbour_was_suppressed() {
+        // A (1.0) at x = 0, B (0.9) at x = 4, C (0.8) at x = 8, radius 4: B lies within A's
+        // window and is suppressed; C's only stronger neighbour is B, so C is kept
+        let (w, h) = (16, 1);
+        let mut heat = vec![0.0f32; w * h];
+        heat[0] = 1.0;
+        heat[4] = 0.9;
+        heat[8] = 0.8;
+        let keep = simple_nms(&heat, w, h, 4);
+        let kept: Vec<usize> = (0..w).filter(|&i| keep[i] && heat[i] > 0.0).collect();
+        assert_eq!(kept, vec![0, 8]);
     }
 
     #[test]
