@@ -151,6 +151,44 @@ def superglue_reference(sd, k0, k1, s0, s1, d0, d1, heads=4, iters=100):
     return z + u[:, None] + v[None, :] - norm
 
 
+def superpoint_keypoints_reference(semi, coarse, radius=4, threshold=0.005, border=4, top_k=None):
+    """SuperPoint's post-processing as MagicLeap's reference code describes it: softmax over
+    the 65 channels, the dustbin dropped, 8x8 cells laid out at full resolution; NMS by max
+    pooling with two recovery rounds; threshold; border removal; top-k; descriptors sampled
+    bilinearly (grid_sample, align_corners) at (x - s/2 + 0.5) / (W s - s/2 - 0.5), then
+    L2-normalised. Returns keypoints (x, y), scores and descriptors."""
+    e = np.exp(semi - semi.max(axis=0, keepdims=True))
+    prob = (e / e.sum(axis=0, keepdims=True))[:-1]
+    h, w = semi.shape[1:]
+    heat = prob.transpose(1, 2, 0).reshape(h, w, 8, 8).transpose(0, 2, 1, 3).reshape(h * 8, w * 8)
+
+    def max_pool(a):
+        p = np.pad(a, radius, constant_values=-np.inf)
+        return np.lib.stride_tricks.sliding_window_view(p, (2 * radius + 1, 2 * radius + 1)).max(axis=(2, 3))
+    keep = heat == max_pool(heat)
+    for _ in range(2):
+        supp = max_pool(keep.astype(np.float64)) > 0
+        rest = np.where(supp, 0.0, heat)
+        keep = keep | ((rest == max_pool(rest)) & ~supp)
+    nms = np.where(keep, heat, 0.0)
+    ys, xs = np.nonzero(nms > threshold)
+    H, W = heat.shape
+    ok = (ys >= border) & (ys < H - border) & (xs >= border) & (xs < W - border)
+    ys, xs = ys[ok], xs[ok]
+    sc = nms[ys, xs]
+    order = np.argsort(-sc, kind="stable")[:top_k]
+    ys, xs, sc = ys[order], xs[order], sc[order]
+    gx = (xs - 3.5) / (w * 8 - 4.5) * (w - 1)
+    gy = (ys - 3.5) / (h * 8 - 4.5) * (h - 1)
+    x0, y0 = np.floor(gx).astype(int), np.floor(gy).astype(int)
+    fx, fy = gx - x0, gy - y0
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    d = (coarse[:, y0, x0] * (1 - fx) * (1 - fy) + coarse[:, y0, x1] * fx * (1 - fy)
+         + coarse[:, y1, x0] * (1 - fx) * fy + coarse[:, y1, x1] * fx * fy).T
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return np.stack([xs, ys], 1).astype(np.float64), sc, d
+
+
 # ---- the check ----------------------------------------------------------------------------
 
 def random_state_dict(shapes, rng, scale, sharp=()):
@@ -204,6 +242,9 @@ def main():
     ap.add_argument("--cache", default=cache_dir(), help="supermvo's cache (onnxruntime's wheel, Python packages)")
     ap.add_argument("--write", metavar="DIR", help="also write the random-weight superpoint.onnx and superglue.onnx "
                     "(18 layers) to DIR/models, for plumbing tests of the Rust front end")
+    ap.add_argument("--image", nargs=3, metavar=("RAW", "W", "H"),
+                    help="with --write: a grey image (raw u8, W x H, multiples of 8) to run the random-weight "
+                    "SuperPoint on; its reference keypoints go to DIR/superpoint_expected.json")
     args = ap.parse_args()
     import onnxruntime as ort
     sys.path.insert(0, HERE)
@@ -252,6 +293,15 @@ def main():
         onnx.save(superpoint_model, os.path.join(args.write, "models", "superpoint.onnx"))
         onnx.save(superglue_model, os.path.join(args.write, "models", "superglue.onnx"))
         print(f"[test] random-weight superpoint.onnx and superglue.onnx written to {args.write}/models")
+        if args.image:
+            import json
+            raw, w, h = args.image[0], int(args.image[1]), int(args.image[2])
+            img = np.fromfile(raw, np.uint8).reshape(h, w).astype(np.float32) / 255
+            semi, coarse = session(superpoint_model).run(["scores_logits", "descriptors"], {"image": img[None, None]})
+            k, sc, d = superpoint_keypoints_reference(semi[0].astype(np.float64), coarse[0].astype(np.float64), top_k=None)
+            with open(os.path.join(args.write, "superpoint_expected.json"), "w") as f:
+                json.dump({"keypoints": k.tolist(), "scores": sc.tolist(), "descriptors": d.tolist()}, f)
+            print(f"[test] reference SuperPoint keypoints ({len(k)}) written")
     if failures:
         sys.exit(f"[test] FAILED: {', '.join(failures)}")
     print("[test] SuperPoint and SuperGlue exports match the reference forward passes")

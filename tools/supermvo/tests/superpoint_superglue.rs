@@ -99,3 +99,102 @@ fn random_weight_models_run_through_the_pipeline() {
         assert!(f["state"].is_string(), "{f}");
     }
 }
+
+/// The Rust SuperPoint post-processing against a NumPy version of MagicLeap's (softmax,
+/// NMS with recovery rounds, threshold, border, top-k, grid_sample descriptors), both on the
+/// same random-weight network's outputs for a 640x368 crop of a KITTI frame.
+#[test]
+fn superpoint_postprocessing_matches_the_reference() {
+    use supermvo_inference::superpoint::{SuperPoint, SuperPointConfig};
+    use supermvo_inference::{Extractor, GrayImage};
+    let Some(frame) = common::shared_data("kitti/sequences/00/image_0/000000.png") else {
+        return;
+    };
+    if !common::models_ready() {
+        return;
+    }
+    let full = GrayImage::load(&frame).unwrap();
+    let (w, h) = (640usize, 368usize);
+    let crop = GrayImage {
+        width: w,
+        height: h,
+        data: (0..h)
+            .flat_map(|y| full.data[y * full.width..y * full.width + w].to_vec())
+            .collect(),
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let raw = dir.path().join("crop.raw");
+    std::fs::write(&raw, &crop.data).unwrap();
+    let made = Command::new("python3")
+        .arg(common::root().join("tools/models/test_superpoint_superglue.py"))
+        .arg("--write")
+        .arg(dir.path())
+        .arg("--image")
+        .arg(&raw)
+        .args([w.to_string(), h.to_string()])
+        .output()
+        .unwrap();
+    assert!(
+        made.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&made.stdout),
+        String::from_utf8_lossy(&made.stderr)
+    );
+    let expected: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("superpoint_expected.json")).unwrap(),
+    )
+    .unwrap();
+    supermvo_inference::runtime::init(Some(&runtime_library())).unwrap();
+    let mut sp = SuperPoint::new(
+        &dir.path().join("models/superpoint.onnx"),
+        SuperPointConfig {
+            top_k: usize::MAX, // every keypoint, so the NMS is compared everywhere
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let f = sp.extract(&crop).unwrap();
+    let kp = expected["keypoints"].as_array().unwrap();
+    assert!(kp.len() > 100, "the reference found {} keypoints", kp.len());
+    assert_eq!(f.len(), kp.len());
+    // the same keypoints; the order may differ only between scores equal to float
+    // precision (the reference computes in f64)
+    let index: std::collections::HashMap<(i64, i64), usize> = kp
+        .iter()
+        .enumerate()
+        .map(|(j, k)| {
+            let k = k.as_array().unwrap();
+            (
+                (k[0].as_f64().unwrap() as i64, k[1].as_f64().unwrap() as i64),
+                j,
+            )
+        })
+        .collect();
+    for i in 0..f.len() {
+        let key = (f.keypoints[i][0] as i64, f.keypoints[i][1] as i64);
+        assert_eq!(
+            (key.0 as f32, key.1 as f32),
+            (f.keypoints[i][0], f.keypoints[i][1]),
+            "integer pixel positions"
+        );
+        let j = *index
+            .get(&key)
+            .unwrap_or_else(|| panic!("keypoint {i} at {key:?} is not in the reference"));
+        let s = expected["scores"][j].as_f64().unwrap();
+        assert!((f.scores[i] as f64 - s).abs() < 1e-5, "score {i}");
+        let in_order = expected["scores"][i].as_f64().unwrap();
+        assert!(
+            (f.scores[i] as f64 - in_order).abs() < 1e-5,
+            "rank {i}: {} vs {in_order}",
+            f.scores[i]
+        );
+        let d = expected["descriptors"][j].as_array().unwrap();
+        let err = d
+            .iter()
+            .zip(f.descriptor(i))
+            .map(|(a, b)| (a.as_f64().unwrap() - *b as f64).abs())
+            .fold(0.0, f64::max);
+        assert!(err < 1e-4, "descriptor {i}: {err}");
+    }
+    eprintln!("{} keypoints as the reference", f.len());
+}
