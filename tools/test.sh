@@ -6,8 +6,10 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash tools/setup.sh
 cargo build --release --workspace --bins
-./target/release/supermvo models fetch onnxruntime xfeat lighterglue lighterglue-l3
+./target/release/supermvo models fetch onnxruntime xfeat lighterglue lighterglue-l3 aliked lightglue
 # SuperPoint and SuperGlue exporters (random weights in the official layout) against NumPy
 # forward passes written from the papers
 python3 tools/models/test_superpoint_superglue.py
+# ALIKED and LightGlue exports (real weights) against NumPy forward passes
+python3 tools/models/test_aliked_lightglue.py
 cargo test --workspace --release "$@"

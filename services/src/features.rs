@@ -6,6 +6,7 @@ use crate::inbox::Inbox;
 use anyhow::Result;
 use supermvo_config::{Frontend, PipelineConfig};
 use supermvo_dataset::GrayImage;
+use supermvo_inference::aliked::{Aliked, AlikedConfig};
 use supermvo_inference::models;
 use supermvo_inference::orb::{Orb, OrbConfig};
 use supermvo_inference::superpoint::{SuperPoint, SuperPointConfig};
@@ -36,6 +37,15 @@ pub fn extractor(cfg: &PipelineConfig) -> Result<Box<dyn Extractor + Send>> {
                 ..Default::default()
             },
         )?),
+        Frontend::AlikedLightglue => Box::new(Aliked::new(
+            &models::model_path("aliked"),
+            AlikedConfig {
+                top_k: cfg.top_k,
+                threads: cfg.threads,
+                device: crate::common::device(cfg.device),
+                ..Default::default()
+            },
+        )?),
         Frontend::Orb => Box::new(Orb::new(OrbConfig {
             top_k: cfg.top_k,
             ..Default::default()
@@ -54,7 +64,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
         .services
         .slice_topic::<f32>(&ctx.node, Topic::Features, false)?
         .publisher_builder()
-        .initial_max_slice_len(cfg.top_k * (3 + 64))
+        .initial_max_slice_len(cfg.top_k * (3 + cfg.frontend.descriptor_dim()))
         .allocation_strategy(AllocationStrategy::PowerOfTwo)
         .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
         .max_loaned_samples(2)

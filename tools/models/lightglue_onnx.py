@@ -37,6 +37,7 @@ class _G:
     def __init__(self, sd, prefix):
         self.sd, self.prefix = sd, prefix
         self.nodes, self.inits, self.n = [], [], 0
+        self.shared = {}
 
     def w(self, key):
         k = self.prefix + key
@@ -57,12 +58,14 @@ class _G:
         return out
 
     def linear(self, x, key, scale=1.0):
-        w = self.w(f"{key}.weight").T * scale
-        y = self.op("MatMul", [x, self.c(w)])
-        b = f"{key}.bias"
-        if self.prefix + b in self.sd:
-            y = self.op("Add", [y, self.c(self.w(b) * scale)])
-        return y
+        # one initializer per weight, shared by every use (both images, every branch)
+        if (key, scale) not in self.shared:
+            b = f"{key}.bias"
+            self.shared[key, scale] = (self.c(self.w(f"{key}.weight").T * scale),
+                                       self.c(self.w(b) * scale) if self.prefix + b in self.sd else None)
+        w, b = self.shared[key, scale]
+        y = self.op("MatMul", [x, w])
+        return y if b is None else self.op("Add", [y, b])
 
     def t(self, x):  # swap the last two axes of a rank-3 tensor
         return self.op("Transpose", [x], perm=[0, 2, 1])
@@ -78,12 +81,12 @@ class _G:
         return self.op("Add", [x, self.linear(h, f"{key}.ffn.3")])
 
 
-def build(sd, prefix="matcher.", n_layers=6, dim=96, name="lighterglue", adaptive=False):
+def build(sd, prefix="matcher.", n_layers=6, dim=96, name="lighterglue", adaptive=False, heads=1):
     g = _G(sd, prefix)
-    head = dim  # one head
+    head = dim // heads  # the width of one attention head
     # rotate_half as a matrix: (x0, x1, x2, x3, ...) -> (-x1, x0, -x3, x2, ...)
-    rot = np.zeros((dim, dim), np.float32)
-    for i in range(dim // 2):
+    rot = np.zeros((head, head), np.float32)
+    for i in range(head // 2):
         rot[2 * i + 1, 2 * i] = -1.0
         rot[2 * i, 2 * i + 1] = 1.0
     rot_c = g.c(rot)
@@ -92,7 +95,7 @@ def build(sd, prefix="matcher.", n_layers=6, dim=96, name="lighterglue", adaptiv
         expand[i, 2 * i] = expand[i, 2 * i + 1] = 1.0
     expand_c = g.c(expand)
     wr = g.c(g.w("posenc.Wr.weight").T)
-    shape_qkv = g.c(np.array([1, -1, dim, 3], np.int64), np.int64)
+    shape_qkv = g.c(np.array([1, -1, dim, 3], np.int64), np.int64) if heads == 1 else None
     inv_sqrt = np.float32(1 / math.sqrt(head))
     f32, i64 = TensorProto.FLOAT, TensorProto.INT64
 
@@ -100,7 +103,42 @@ def build(sd, prefix="matcher.", n_layers=6, dim=96, name="lighterglue", adaptiv
         proj = g.op("MatMul", [k, wr])
         return (g.op("MatMul", [g.op("Cos", [proj]), expand_c]), g.op("MatMul", [g.op("Sin", [proj]), expand_c]))
 
+    def split(t):  # [1, N, dim] -> [1, heads, N, head]
+        return g.op("Transpose", [g.op("Reshape", [t, g.c(np.array([1, -1, heads, head], np.int64), np.int64)])], perm=[0, 2, 1, 3])
+
+    def merge(t):  # [1, heads, N, head] -> [1, N, dim]
+        return g.op("Reshape", [g.op("Transpose", [t], perm=[0, 2, 1, 3]), g.c(np.array([1, -1, dim], np.int64), np.int64)])
+
+    def t4(t):  # swap the last two axes of a rank-4 tensor
+        return g.op("Transpose", [t], perm=[0, 1, 3, 2])
+
+    def transformer_heads(layer, x, enc):
+        """LightGlue with several attention heads (rank-4 tensors [1, heads, N, head])."""
+        x = list(x)
+        key = f"transformers.{layer}.self_attn"
+        shape5 = g.c(np.array([1, -1, heads, head, 3], np.int64), np.int64)
+        for s in range(2):
+            qkv = g.op("Reshape", [g.linear(x[s], f"{key}.Wqkv"), shape5])
+            q, k, v = (g.op("Transpose", [g.op("Gather", [qkv, g.c(np.int64(j), np.int64)], axis=4)], perm=[0, 2, 1, 3])
+                       for j in range(3))
+            cos, sin = enc[s]  # [1, N, head], broadcast over heads
+            q = g.op("Add", [g.op("Mul", [q, cos]), g.op("Mul", [g.op("MatMul", [q, rot_c]), sin])])
+            k = g.op("Add", [g.op("Mul", [k, cos]), g.op("Mul", [g.op("MatMul", [k, rot_c]), sin])])
+            att = g.op("Softmax", [g.op("Mul", [g.op("MatMul", [q, t4(k)]), g.c(inv_sqrt)])], axis=-1)
+            msg = g.linear(merge(g.op("MatMul", [att, v])), f"{key}.out_proj")
+            x[s] = g.ffn(x[s], msg, key)
+        key = f"transformers.{layer}.cross_attn"
+        s4 = float(head) ** -0.25
+        qk0, qk1 = split(g.linear(x[0], f"{key}.to_qk", s4)), split(g.linear(x[1], f"{key}.to_qk", s4))
+        v0, v1 = split(g.linear(x[0], f"{key}.to_v")), split(g.linear(x[1], f"{key}.to_v"))
+        sim = g.op("MatMul", [qk0, t4(qk1)])
+        m0 = merge(g.op("MatMul", [g.op("Softmax", [sim], axis=-1), v1]))
+        m1 = merge(g.op("MatMul", [g.op("Softmax", [t4(sim)], axis=-1), v0]))
+        return [g.ffn(x[0], g.linear(m0, f"{key}.to_out"), key), g.ffn(x[1], g.linear(m1, f"{key}.to_out"), key)]
+
     def transformer(layer, x, enc):
+        if heads > 1:
+            return transformer_heads(layer, x, enc)
         x = list(x)
         key = f"transformers.{layer}.self_attn"
         for s in range(2):

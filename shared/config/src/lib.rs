@@ -85,6 +85,21 @@ pub enum Frontend {
     /// weights, exported with `supermvo models fetch superpoint|superglue --weights PATH`).
     #[serde(rename = "superpoint-superglue")]
     SuperpointSuperglue,
+    /// ALIKED keypoints, LightGlue matching (the accuracy option; slower on a CPU).
+    #[serde(rename = "aliked-lightglue")]
+    AlikedLightglue,
+}
+
+impl Frontend {
+    /// Length of one descriptor in floats (ORB's 256 bits travel as 8 bit-cast words).
+    pub fn descriptor_dim(self) -> usize {
+        match self {
+            Self::XfeatLighterglue => 64,
+            Self::Orb => 8,
+            Self::SuperpointSuperglue => 256,
+            Self::AlikedLightglue => 128,
+        }
+    }
 }
 
 impl std::str::FromStr for Frontend {
@@ -96,8 +111,9 @@ impl std::str::FromStr for Frontend {
             "xfeat-lighterglue" => Ok(Self::XfeatLighterglue),
             "orb" => Ok(Self::Orb),
             "superpoint-superglue" => Ok(Self::SuperpointSuperglue),
+            "aliked-lightglue" => Ok(Self::AlikedLightglue),
             other => Err(format!(
-                "front end '{other}' is not available; use xfeat-lighterglue, orb or superpoint-superglue"
+                "front end '{other}' is not available; use xfeat-lighterglue, aliked-lightglue, orb or superpoint-superglue"
             )),
         }
     }
@@ -115,8 +131,9 @@ pub struct PipelineConfig {
     /// Real-time replay speed factor: 1.0 replays at the dataset's own rate (10 Hz for KITTI,
     /// from times.txt), 2.0 twice as fast. (0, 100].
     pub speed: f64,
-    /// Front end: "xfeat-lighterglue" (learned, the default) or "orb" (the classical
-    /// baseline: ORB keypoints, brute-force Hamming matching).
+    /// Front end: "xfeat-lighterglue" (learned, the default), "aliked-lightglue" (learned,
+    /// more accurate, slower), "superpoint-superglue" (official weights needed) or "orb" (the
+    /// classical baseline: ORB keypoints, brute-force Hamming matching).
     pub frontend: Frontend,
     /// Keypoints per frame, [64, 8192].
     pub top_k: usize,

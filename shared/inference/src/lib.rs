@@ -8,7 +8,11 @@
 //! * [`xfeat::XFeat`]: XFeat (Potje et al., CVPR 2024) over an `ort` session, with the
 //!   reference post-processing (softmax heatmap, 5x5 NMS, reliability-weighted scores,
 //!   top-k, bicubic descriptor sampling) written in Rust.
+//! * [`aliked::Aliked`]: ALIKED (the extractor LightGlue was trained with), detection and
+//!   deformable descriptors in one graph; [`lighterglue::LightGlue`] runs both LighterGlue
+//!   and LightGlue.
 
+pub mod aliked;
 mod error;
 pub mod lighterglue;
 pub mod models;

@@ -48,7 +48,7 @@ enum BenchCommand {
         /// Write per-pair rows (seq, frame, matches, inliers) as CSV here.
         #[arg(long)]
         csv: Option<PathBuf>,
-        /// Front end: xfeat-lighterglue, orb or superpoint-superglue.
+        /// Front end: xfeat-lighterglue, aliked-lightglue, orb or superpoint-superglue.
         #[arg(long, default_value = "xfeat-lighterglue")]
         frontend: String,
     },
@@ -64,7 +64,7 @@ enum BenchCommand {
         /// Replays of the tracker over the recorded inputs.
         #[arg(long, default_value_t = 3)]
         repeats: usize,
-        /// Front end: xfeat-lighterglue, orb or superpoint-superglue.
+        /// Front end: xfeat-lighterglue, aliked-lightglue, orb or superpoint-superglue.
         #[arg(long, default_value = "xfeat-lighterglue")]
         frontend: String,
     },

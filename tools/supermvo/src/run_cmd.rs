@@ -42,8 +42,9 @@ pub struct RunArgs {
     /// Configuration file (see config/default.toml); the options below override it.
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Front end: xfeat-lighterglue (learned), orb (classical baseline) or
-    /// superpoint-superglue (official weights exported locally) [pipeline.frontend].
+    /// Front end: xfeat-lighterglue (learned, the default), aliked-lightglue (learned, more
+    /// accurate, slower), orb (classical baseline) or superpoint-superglue (official weights
+    /// exported locally) [pipeline.frontend].
     #[arg(long)]
     frontend: Option<String>,
     /// Where the networks run: cpu, or cuda (falls back to the CPU with a warning)

@@ -105,22 +105,27 @@ pub fn gradient_png(w: u32, h: u32) -> Vec<u8> {
 /// Whether ONNX Runtime and the default models are in the cache; when not, prints why (the
 /// test then skips), unless `SUPERMVO_REQUIRE_SHARED=1`, in which case it fails.
 pub fn models_ready() -> bool {
+    models_ready_for(&["xfeat", "lighterglue"])
+}
+
+/// ONNX Runtime and the cached models `names` are there (skip, or fail when
+/// `SUPERMVO_REQUIRE_SHARED=1`, otherwise).
+pub fn models_ready_for(names: &[&str]) -> bool {
     let home = std::env::var_os("SUPERMVO_CACHE")
         .map(std::path::PathBuf::from)
         .unwrap_or_else(|| Path::new(&std::env::var("HOME").unwrap()).join(".cache/supermvo"));
-    let ok = [
-        "models/xfeat.onnx",
-        "models/lighterglue.onnx",
-        "onnxruntime/1.31.1/libonnxruntime.so.1.31.1",
-    ]
-    .iter()
-    .all(|p| home.join(p).is_file());
+    let ok = home
+        .join("onnxruntime/1.31.1/libonnxruntime.so.1.31.1")
+        .is_file()
+        && names
+            .iter()
+            .all(|n| home.join(format!("models/{n}.onnx")).is_file());
     if !ok {
         assert!(
             std::env::var("SUPERMVO_REQUIRE_SHARED").as_deref() != Ok("1"),
-            "run 'supermvo models fetch' first"
+            "run 'supermvo models fetch' first ({names:?} needed)"
         );
-        eprintln!("SKIP: models not fetched");
+        eprintln!("SKIP: models {names:?} not fetched");
     }
     ok
 }
