@@ -10,7 +10,11 @@ with pruning and early stopping (depth_confidence 0.95; off by default). The
 script alternates the Rust and the Python measurement --rounds times and reports the
 median of the per-round medians, and their ratio (Rust / Python; <= 1.05 wanted).
 Rust's full extraction (resize + network + NMS, scoring, top-k, descriptor sampling) and
-full matching (network + mutual filtering) are reported too.
+full matching (network + mutual filtering) are reported too. When `supermvo models fetch
+aliked lightglue` has run, ALIKED (one graph: network, detection and descriptors, on the
+full frame, 2048 keypoints requested) and LightGlue (on the keypoints ALIKED keeps of 1024
+and 2048 requested; LightGlue's pruning and early stopping, and neither) are timed the same
+way with fewer calls (`--aliked-runs`, 5).
 
     python3 tools/bench_frontend.py [--seq 00] [--rounds 5] [--runs 15]
 """
@@ -33,7 +37,7 @@ def cache():
     return os.environ.get("SUPERMVO_CACHE") or os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "supermvo")
 
 
-def python_medians(runs, threads, size, keypoints, dump, sizes):
+def python_medians(runs, threads, size, keypoints, dump, sizes, rust, seq):
     import onnxruntime as ort
     from PIL import Image
     opts = ort.SessionOptions()
@@ -42,11 +46,11 @@ def python_medians(runs, threads, size, keypoints, dump, sizes):
     xs = ort.InferenceSession(os.path.join(models, "xfeat.onnx"), opts, providers=["CPUExecutionProvider"])
     ls = ort.InferenceSession(os.path.join(models, "lighterglue.onnx"), opts, providers=["CPUExecutionProvider"])
 
-    def med(fn):
+    def med(fn, n=runs):
         for _ in range(3):
             fn()
         t = []
-        for _ in range(runs):
+        for _ in range(n):
             s = time.perf_counter(); fn(); t.append((time.perf_counter() - s) * 1e3)
         return statistics.median(t)
 
@@ -62,6 +66,19 @@ def python_medians(runs, threads, size, keypoints, dump, sizes):
                                     (f"lighterglue_{k}_network_early_stop_ms", 0.05, 0.95)):
             f = dict(feeds, min_matchability=np.array(minimum, np.float32), depth_confidence=np.array(depth, np.float32))
             out[key] = med(lambda: ls.run(None, f))
+    if "aliked_runs" in rust:  # ALIKED + LightGlue, fewer calls (seconds each)
+        ar = rust["aliked_runs"]
+        als = ort.InferenceSession(os.path.join(models, "aliked.onnx"), opts, providers=["CPUExecutionProvider"])
+        lgs = ort.InferenceSession(os.path.join(models, "lightglue.onnx"), opts, providers=["CPUExecutionProvider"])
+        full = np.asarray(Image.open(os.path.join(SHARED, seq, "image_0", "000000.png")).convert("L"), np.float32) / 255
+        out["aliked_extract_ms"] = med(lambda: als.run(None, {"image": full[None, None], "top_k": np.array([2048], np.int64)}), ar)
+        for k in (1024, 2048):
+            m, n = rust[f"aliked_{k}_sizes"]
+            load = lambda name, count, width: np.fromfile(os.path.join(dump, f"lightglue_{k}_{name}.f32"), "<f4").reshape(1, count, width)
+            feeds = {"kpts0": load("kpts0", m, 2), "kpts1": load("kpts1", n, 2), "desc0": load("desc0", m, 128), "desc1": load("desc1", n, 128)}
+            for key, minimum, depth in ((f"lightglue_{k}_network_ms", 0.01, 0.95), (f"lightglue_{k}_network_full_ms", -1.0, -1.0)):
+                f = dict(feeds, min_matchability=np.array(minimum, np.float32), depth_confidence=np.array(depth, np.float32))
+                out[key] = med(lambda: lgs.run(None, f), ar)
     return out
 
 
@@ -84,7 +101,7 @@ def main():
             rust.append(r)
             ks = [k for k in (1024, 2048) if r[f"keypoints_{k}"] == k]
             sizes = {k: (r[f"sizes_{k}"], r[f"dim_{k}"]) for k in ks}
-            py.append(python_medians(args.runs, r["threads"], tuple(r["input_size"]), ks, dump, sizes))
+            py.append(python_medians(args.runs, r["threads"], tuple(r["input_size"]), ks, dump, sizes, r, args.seq))
     med = lambda rows, key: statistics.median(x[key] for x in rows)
     w, h = rust[0]["input_size"]
     print(f"KITTI {args.seq} frames 0-1, network input {w}x{h}, {rust[0]['threads']} intra-op threads, "
@@ -95,6 +112,12 @@ def main():
         rows += [(f"lighterglue_{k}_network_ms", f"LighterGlue network, {k}, pruned"),
                  (f"lighterglue_{k}_network_unpruned_ms", f"LighterGlue network, {k}, no pruning"),
                  (f"lighterglue_{k}_network_early_stop_ms", f"LighterGlue network, {k}, pruned+stop")]
+    if "aliked_runs" in rust[0]:
+        rows.append(("aliked_extract_ms", "ALIKED, whole graph, full frame"))
+        for k in (1024, 2048):
+            m, n = rust[0][f"aliked_{k}_sizes"]
+            rows += [(f"lightglue_{k}_network_ms", f"LightGlue, {m}+{n}, pruned+stop"),
+                     (f"lightglue_{k}_network_full_ms", f"LightGlue, {m}+{n}, full")]
     for key, label in rows:
         if key in py[0]:
             print(f"{label:<38} {med(rust, key):>9.2f} {med(py, key):>10.2f} {med(rust, key) / med(py, key):>7.3f}")
@@ -107,6 +130,13 @@ def main():
             print(f"{k} keypoints: {kept[0]} and {kept[1]} reach the last layer; matches unpruned {mt['unpruned']}, "
                   f"pruned {mt['pruned']} ({mt['common']} of them also unpruned), pruned+stop {mt['early_stop']} "
                   f"({mt['early_stop_common']}) after {rust[0][f'lighterglue_{k}_early_stop_layers']} of 6 layers")
+    if "aliked_runs" in rust[0]:
+        print(f"ALIKED/LightGlue: {rust[0]['aliked_runs']} calls per measurement; ALIKED keypoints scoring above 0.2 "
+              f"among the 1024 / 2048 requested: {rust[0]['aliked_1024_sizes']} / {rust[0]['aliked_2048_sizes']}")
+        for k in (1024, 2048):
+            mt = rust[0][f"lightglue_{k}_matches"]
+            print(f"LightGlue {k}: matches full {mt['full']}, pruned+stop {mt['adaptive']} ({mt['common']} of them also full) "
+                  f"after {rust[0][f'lightglue_{k}_layers']} of 9 layers")
 
 
 if __name__ == "__main__":

@@ -22,6 +22,9 @@ adaptive width and depth, controlled by two scalar inputs:
 Three more outputs: `kept0` [M'] and `kept1` [N'] (int64) give the original index of each
 row and column of the (smaller) `log_assignment` [1, M' + 1, N' + 1], and `layers` (int64
 scalar) the number of layers that ran (LightGlue's `stop`).
+`heads` > 1 (LightGlue proper: 4 heads of 64 over 256 dimensions, 9 layers) splits self and
+cross attention into heads as rank-4 tensors [1, heads, N, head]; LighterGlue has one head.
+Each weight is one initializer shared by both images and every branch.
 Implementation notes: the interleaved q/k/v split of `Wqkv` is a reshape to [.., D, 3];
 `rotate_half` and the frequency `repeat_interleave` are constant matrices; GELU is exact
 (erf); LayerNorm eps is 1e-5.

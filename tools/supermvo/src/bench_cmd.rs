@@ -68,7 +68,8 @@ enum BenchCommand {
         #[arg(long, default_value = "xfeat-lighterglue")]
         frontend: String,
     },
-    /// XFeat extraction and LighterGlue matching on two consecutive frames.
+    /// XFeat extraction and LighterGlue matching on two consecutive frames (and ALIKED and
+    /// LightGlue when fetched).
     Frontend {
         /// First image; the second is the next frame (or the same image again).
         image_a: PathBuf,
@@ -84,6 +85,10 @@ enum BenchCommand {
         /// count, raw little-endian f32) here, so another runtime can be timed on the same data.
         #[arg(long)]
         dump: Option<PathBuf>,
+        /// Timed calls per ALIKED / LightGlue measurement (at most --runs; measured only when
+        /// `supermvo models fetch aliked lightglue` has run).
+        #[arg(long, default_value_t = 5)]
+        aliked_runs: usize,
     },
 }
 
@@ -103,7 +108,7 @@ fn median_ms(mut f: impl FnMut() -> Result<()>, runs: usize) -> Result<f64> {
 
 /// Runs `supermvo bench`; prints one JSON object of medians in milliseconds.
 pub fn run(args: &BenchArgs) -> Result<()> {
-    let (image_a, image_b, runs, threads, dump) = match &args.command {
+    let (image_a, image_b, runs, threads, dump, aliked_runs) = match &args.command {
         BenchCommand::Ipc { samples } => {
             let exe = std::env::current_exe()?;
             let rows = supermvo_services::bench_ipc::run(&exe, (*samples).max(10))?;
@@ -133,7 +138,8 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             runs,
             threads,
             dump,
-        } => (image_a, image_b, runs, threads, dump),
+            aliked_runs,
+        } => (image_a, image_b, runs, threads, dump, aliked_runs),
         BenchCommand::Matching {
             sequences,
             top_k,
@@ -274,9 +280,92 @@ pub fn run(args: &BenchArgs) -> Result<()> {
                 "early_stop_common": common(&early)}),
         );
     }
+    if models::model_path("aliked").is_file() && models::model_path("lightglue").is_file() {
+        aliked_lightglue(&a, &b, *threads, (*runs).min(*aliked_runs).max(1), dump.as_deref(), &mut result)?;
+    }
     result.insert("input_size".into(), serde_json::json!([w, h]));
     result.insert("threads".into(), (*threads).into());
     outln!("{}", serde_json::Value::Object(result));
+    Ok(())
+}
+
+/// ALIKED (the whole graph at the image's size; Rust adds the u8 -> f32 conversion and the
+/// score threshold) and LightGlue at 1024 and 2048 requested keypoints, with LightGlue's
+/// default pruning and early stopping and without either; `runs` calls each (they take
+/// seconds on a small CPU).
+fn aliked_lightglue(
+    a: &GrayImage,
+    b: &GrayImage,
+    threads: usize,
+    runs: usize,
+    dump: Option<&std::path::Path>,
+    result: &mut serde_json::Map<String, serde_json::Value>,
+) -> Result<()> {
+    use supermvo_inference::aliked::{Aliked, AlikedConfig};
+    let open = |width_confidence, depth_confidence| {
+        LightGlue::new(
+            &models::model_path("lightglue"),
+            "lightglue",
+            LightGlueConfig {
+                threads,
+                width_confidence,
+                depth_confidence,
+                ..Default::default()
+            },
+        )
+    };
+    let (mut lg, mut lg_full) = (open(0.99, 0.95)?, open(-1.0, -1.0)?);
+    result.insert("aliked_runs".into(), runs.into());
+    for k in [1024usize, 2048] {
+        let mut al = Aliked::new(
+            &models::model_path("aliked"),
+            AlikedConfig {
+                top_k: k,
+                threads,
+                ..Default::default()
+            },
+        )?;
+        if k == 2048 {
+            result.insert(
+                "aliked_extract_ms".into(),
+                median_ms(|| Ok(al.extract(a).map(|_| ())?), runs)?.into(),
+            );
+        }
+        let (fa, fb) = (al.extract(a)?, al.extract(b)?);
+        result.insert(
+            format!("aliked_{k}_sizes"),
+            serde_json::json!([fa.len(), fb.len()]),
+        );
+        if let Some(dir) = dump {
+            let raw = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+            for (name, data) in [
+                ("kpts0", normalize_keypoints(&fa)),
+                ("kpts1", normalize_keypoints(&fb)),
+                ("desc0", fa.descriptors.clone()),
+                ("desc1", fb.descriptors.clone()),
+            ] {
+                let path = dir.join(format!("lightglue_{k}_{name}.f32"));
+                std::fs::write(&path, raw(&data))
+                    .with_context(|| format!("cannot write {}", path.display()))?;
+            }
+        }
+        let layers = lg.assignment(&fa, &fb)?.layers;
+        result.insert(format!("lightglue_{k}_layers"), layers.into());
+        result.insert(
+            format!("lightglue_{k}_network_ms"),
+            median_ms(|| Ok(lg.assignment(&fa, &fb).map(|_| ())?), runs)?.into(),
+        );
+        result.insert(
+            format!("lightglue_{k}_network_full_ms"),
+            median_ms(|| Ok(lg_full.assignment(&fa, &fb).map(|_| ())?), runs)?.into(),
+        );
+        let (m, full) = (lg.match_features(&fa, &fb)?, lg_full.match_features(&fa, &fb)?);
+        result.insert(
+            format!("lightglue_{k}_matches"),
+            serde_json::json!({"adaptive": m.pairs.len(), "full": full.pairs.len(),
+                "common": m.pairs.iter().filter(|p| full.pairs.contains(p)).count()}),
+        );
+    }
     Ok(())
 }
 
