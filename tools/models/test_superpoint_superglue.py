@@ -237,6 +237,19 @@ def check_superglue(label, sd, rng, session, check, failures):
     check(f"SuperGlue {label}: plan column sums", cols, np.r_[np.ones(n), m], 1e-3, 1e-3)
 
 
+def checker(failures):
+    """check(what, got, want, atol, rtol): prints the largest difference and records `what`
+    in `failures` where |got - want| > atol + rtol |want| anywhere."""
+    def check(what, got, want, atol, rtol):
+        err = np.abs(got - want)
+        bad = err > atol + rtol * np.abs(want)
+        print(f"[test] {what}: max abs difference {err.max():.2e} over {want.size} values (largest magnitude {np.abs(want).max():.3g})"
+              + (" FAIL" if bad.any() else ""))
+        if bad.any():
+            failures.append(what)
+    return check
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cache", default=cache_dir(), help="supermvo's cache (onnxruntime's wheel, Python packages)")
@@ -261,13 +274,7 @@ def main():
             onnx.save(model, path)
             return ort.InferenceSession(path, providers=["CPUExecutionProvider"])
 
-    def check(what, got, want, atol, rtol):
-        err = np.abs(got - want)
-        bad = err > atol + rtol * np.abs(want)
-        print(f"[test] {what}: max abs difference {err.max():.2e} over {want.size} values (largest magnitude {np.abs(want).max():.3g})"
-              + (" FAIL" if bad.any() else ""))
-        if bad.any():
-            failures.append(what)
+    check = checker(failures)
 
     # SuperPoint: a random image of 48 x 64 (multiples of 8)
     sd = random_state_dict(superpoint_onnx.shapes(), rng, 1.6)

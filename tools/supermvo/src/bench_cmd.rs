@@ -223,17 +223,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         let (fa, fb) = (x.extract(&a)?, x.extract(&b)?);
         result.insert(format!("keypoints_{k}"), (fa.len().min(fb.len())).into());
         if let Some(dir) = dump {
-            let raw = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
-            for (name, data) in [
-                ("kpts0", normalize_keypoints(&fa)),
-                ("kpts1", normalize_keypoints(&fb)),
-                ("desc0", fa.descriptors.clone()),
-                ("desc1", fb.descriptors.clone()),
-            ] {
-                let path = dir.join(format!("lighterglue_{k}_{name}.f32"));
-                std::fs::write(&path, raw(&data))
-                    .with_context(|| format!("cannot write {}", path.display()))?;
-            }
+            dump_matcher_inputs(dir, &format!("lighterglue_{k}"), &fa, &fb)?;
             result.insert(format!("dim_{k}"), fa.dim.into());
             result.insert(
                 format!("sizes_{k}"),
@@ -281,11 +271,40 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         );
     }
     if models::model_path("aliked").is_file() && models::model_path("lightglue").is_file() {
-        aliked_lightglue(&a, &b, *threads, (*runs).min(*aliked_runs).max(1), dump.as_deref(), &mut result)?;
+        aliked_lightglue(
+            &a,
+            &b,
+            *threads,
+            (*runs).min(*aliked_runs).max(1),
+            dump.as_deref(),
+            &mut result,
+        )?;
     }
     result.insert("input_size".into(), serde_json::json!([w, h]));
     result.insert("threads".into(), (*threads).into());
     outln!("{}", serde_json::Value::Object(result));
+    Ok(())
+}
+
+/// Writes a matcher's inputs for `fa` and `fb` (normalised keypoints, descriptors) as raw
+/// little-endian f32 files `dir/{prefix}_{kpts0,kpts1,desc0,desc1}.f32`.
+fn dump_matcher_inputs(
+    dir: &std::path::Path,
+    prefix: &str,
+    fa: &supermvo_inference::Features,
+    fb: &supermvo_inference::Features,
+) -> Result<()> {
+    let raw = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+    for (name, data) in [
+        ("kpts0", normalize_keypoints(fa)),
+        ("kpts1", normalize_keypoints(fb)),
+        ("desc0", fa.descriptors.clone()),
+        ("desc1", fb.descriptors.clone()),
+    ] {
+        let path = dir.join(format!("{prefix}_{name}.f32"));
+        std::fs::write(&path, raw(&data))
+            .with_context(|| format!("cannot write {}", path.display()))?;
+    }
     Ok(())
 }
 
@@ -337,17 +356,7 @@ fn aliked_lightglue(
             serde_json::json!([fa.len(), fb.len()]),
         );
         if let Some(dir) = dump {
-            let raw = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
-            for (name, data) in [
-                ("kpts0", normalize_keypoints(&fa)),
-                ("kpts1", normalize_keypoints(&fb)),
-                ("desc0", fa.descriptors.clone()),
-                ("desc1", fb.descriptors.clone()),
-            ] {
-                let path = dir.join(format!("lightglue_{k}_{name}.f32"));
-                std::fs::write(&path, raw(&data))
-                    .with_context(|| format!("cannot write {}", path.display()))?;
-            }
+            dump_matcher_inputs(dir, &format!("lightglue_{k}"), &fa, &fb)?;
         }
         let layers = lg.assignment(&fa, &fb)?.layers;
         result.insert(format!("lightglue_{k}_layers"), layers.into());
@@ -359,7 +368,10 @@ fn aliked_lightglue(
             format!("lightglue_{k}_network_full_ms"),
             median_ms(|| Ok(lg_full.assignment(&fa, &fb).map(|_| ())?), runs)?.into(),
         );
-        let (m, full) = (lg.match_features(&fa, &fb)?, lg_full.match_features(&fa, &fb)?);
+        let (m, full) = (
+            lg.match_features(&fa, &fb)?,
+            lg_full.match_features(&fa, &fb)?,
+        );
         result.insert(
             format!("lightglue_{k}_matches"),
             serde_json::json!({"adaptive": m.pairs.len(), "full": full.pairs.len(),
@@ -388,8 +400,8 @@ fn matching(
     csv: Option<&std::path::Path>,
 ) -> Result<()> {
     use supermvo_dataset::KittiSequence;
-    use supermvo_geometry::essential::{find_essential, RansacConfig};
-    use supermvo_geometry::Vec3;
+    use supermvo_geometry::essential::RansacConfig;
+    use supermvo_vo::pairs::essential_inliers;
     // the front end exactly as the pipeline builds it
     let pipeline = supermvo_config::PipelineConfig {
         frontend: frontend.parse().map_err(anyhow::Error::msg)?,
@@ -409,30 +421,12 @@ fn matching(
     for dir in sequences {
         let seq = KittiSequence::open(dir)?;
         let k = seq.calib;
-        let norm = |p: &[f32; 2]| {
-            Vec3::new(
-                (p[0] as f64 - k.cx) / k.fx,
-                (p[1] as f64 - k.cy) / k.fy,
-                1.0,
-            )
-        };
         let (mut ms, mut is, mut rs) = (Vec::new(), Vec::new(), Vec::new());
         let mut prev = xfeat.extract(&GrayImage::load(&seq.images[0])?)?;
         for (i, path) in seq.images.iter().enumerate().skip(1) {
             let cur = xfeat.extract(&GrayImage::load(path)?)?;
             let m = lg.match_features(&prev, &cur)?;
-            let x1: Vec<Vec3> = m
-                .pairs
-                .iter()
-                .map(|&(a, _)| norm(&prev.keypoints[a]))
-                .collect();
-            let x2: Vec<Vec3> = m
-                .pairs
-                .iter()
-                .map(|&(_, b)| norm(&cur.keypoints[b]))
-                .collect();
-            let inl = find_essential(&x1, &x2, 0.5 * (k.fx + k.fy), &ransac)
-                .map_or(0, |e| e.inlier_count());
+            let inl = essential_inliers(&k, &prev, &cur, &m, &ransac);
             rows.push_str(&format!(
                 "{},{},{},{}\n",
                 seq.name(),

@@ -9,33 +9,14 @@ mod common;
 use std::process::Command;
 use supermvo_config::{Frontend, PipelineConfig};
 use supermvo_dataset::{GrayImage, KittiSequence};
-use supermvo_geometry::essential::{find_essential, RansacConfig};
-use supermvo_geometry::Vec3;
+use supermvo_geometry::essential::RansacConfig;
 use supermvo_inference::lighterglue::{LightGlue, LightGlueConfig};
 use supermvo_inference::{models, Features, Matcher, Matches};
+use supermvo_vo::pairs::essential_inliers;
 
 /// 5-point RANSAC inliers (1 px, 0.999) of `m` between `a` and `b` under `seq`'s calibration.
 fn inliers(seq: &KittiSequence, a: &Features, b: &Features, m: &Matches) -> usize {
-    let k = seq.calib;
-    let norm = |p: &[f32; 2]| {
-        Vec3::new(
-            (p[0] as f64 - k.cx) / k.fx,
-            (p[1] as f64 - k.cy) / k.fy,
-            1.0,
-        )
-    };
-    let x1: Vec<Vec3> = m
-        .pairs
-        .iter()
-        .map(|&(i, _)| norm(&a.keypoints[i]))
-        .collect();
-    let x2: Vec<Vec3> = m
-        .pairs
-        .iter()
-        .map(|&(_, j)| norm(&b.keypoints[j]))
-        .collect();
-    find_essential(&x1, &x2, 0.5 * (k.fx + k.fy), &RansacConfig::default())
-        .map_or(0, |e| e.inlier_count())
+    essential_inliers(&seq.calib, a, b, m, &RansacConfig::default())
 }
 
 #[test]
