@@ -25,6 +25,7 @@ use supermvo_vo::tracker::{
 pub fn tracker_config(cfg: &PipelineConfig) -> TrackerConfig {
     let base = TrackerConfig {
         local_ba_window: cfg.ba_window,
+        keyframe_ratio: cfg.keyframe_ratio,
         ..TrackerConfig::default()
     };
     match cfg.frontend {

@@ -145,6 +145,10 @@ pub struct PipelineConfig {
     pub features_workers: usize,
     /// Keyframes in the local bundle-adjustment window (0 disables it), [0, 30].
     pub ba_window: usize,
+    /// New keyframe when fewer landmarks are tracked than this fraction of the reference
+    /// keyframe's (ORB-SLAM's rule); 0 (the default) leaves only the fixed count and the
+    /// frame limit, [0, 1].
+    pub keyframe_ratio: f64,
     /// Restarts allowed per stage before the supervisor gives up, [0, 100].
     pub max_restarts: u32,
     /// First restart delay in milliseconds, doubled on each further restart of a stage, [0, 10000].
@@ -187,6 +191,7 @@ impl Default for PipelineConfig {
             device: Device::Cpu,
             features_workers: 1,
             ba_window: 6,
+            keyframe_ratio: 0.0,
             max_restarts: 5,
             restart_backoff_ms: 100,
             deadline_ms: 20_000,
@@ -251,6 +256,13 @@ impl PipelineConfig {
                     allowed: "must be in (0, 1), or -1 to switch it off".into(),
                 });
             }
+        }
+        if !(0.0..=1.0).contains(&self.keyframe_ratio) {
+            return Err(ConfigError::OutOfRange {
+                key: "pipeline.keyframe_ratio".into(),
+                value: self.keyframe_ratio.to_string(),
+                allowed: "must be in [0, 1]".into(),
+            });
         }
         range("top_k", self.top_k, 64, 8192)?;
         range("threads", self.threads, 1, 64)?;
@@ -414,6 +426,17 @@ mod tests {
             .to_string();
             assert!(err.contains("pipeline.depth_confidence"), "{err}");
         }
+        for bad in ["1.5", "-0.1"] {
+            let err = Config::from_toml(
+                &format!("[pipeline]\nkeyframe_ratio = {bad}\n"),
+                Path::new("c.toml"),
+            )
+            .unwrap_err()
+            .to_string();
+            assert!(err.contains("pipeline.keyframe_ratio"), "{err}");
+        }
+        let cfg = Config::from_toml("[pipeline]\nkeyframe_ratio = 0.9\n", Path::new("c.toml"));
+        assert_eq!(cfg.unwrap().pipeline.keyframe_ratio, 0.9);
         let cfg = Config::from_toml(
             "[pipeline]\nwidth_confidence = -1\ndepth_confidence = 0.95\n",
             Path::new("c.toml"),

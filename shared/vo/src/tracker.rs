@@ -48,6 +48,11 @@ pub struct TrackerConfig {
     pub min_init_parallax_deg: f64,
     /// New keyframe after at most this many frames.
     pub max_frames_between_keyframes: usize,
+    /// New keyframe when fewer landmarks are tracked than this fraction of the reference
+    /// keyframe's established ones (seen by 3 or more keyframes; ORB-SLAM's rule, 0.9 there
+    /// for monocular): it scales with how many points the front end matches, where
+    /// `keyframe_min_tracked` does not; 0 switches it off.
+    pub keyframe_ratio: f64,
     /// Keyframes in the local bundle adjustment window (0 disables it).
     pub local_ba_window: usize,
     /// Local-map search: after the pose from the keyframe matches, landmarks of the local
@@ -84,6 +89,7 @@ impl Default for TrackerConfig {
             weak_triangulation_parallax_deg: 1.0,
             min_init_parallax_deg: 1.0,
             max_frames_between_keyframes: 3,
+            keyframe_ratio: 0.0,
             local_ba_window: 6,
             map_search_radius_px: 10.0,
             map_search_max_distance: 0.25,
@@ -959,8 +965,19 @@ impl Tracker {
         self.velocity = Some((rv, t - rv * lt));
         self.last_pose = (r, t);
         self.frames_since_keyframe += 1;
+        // the reference keyframe's established landmarks (seen by 3 or more keyframes, as
+        // ORB-SLAM counts them; not the ones it has just triangulated)
+        let established = || {
+            kf.landmark
+                .iter()
+                .flatten()
+                .filter(|id| self.landmarks.get(id).is_some_and(|l| l.obs.len() >= 3))
+                .count()
+        };
         let need_kf = tracked < self.cfg.keyframe_min_tracked
-            || self.frames_since_keyframe >= self.cfg.max_frames_between_keyframes;
+            || self.frames_since_keyframe >= self.cfg.max_frames_between_keyframes
+            || (self.cfg.keyframe_ratio > 0.0
+                && (tracked as f64) < self.cfg.keyframe_ratio * established() as f64);
         if !need_kf {
             let out = self.output(
                 input,

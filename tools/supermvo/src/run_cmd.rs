@@ -57,6 +57,10 @@ pub struct RunArgs {
     /// Keyframes in the local bundle-adjustment window, 0 disables it [pipeline.ba_window].
     #[arg(long)]
     ba_window: Option<usize>,
+    /// New keyframe below this fraction of the reference keyframe's tracked landmarks, 0
+    /// off [pipeline.keyframe_ratio].
+    #[arg(long)]
+    keyframe_ratio: Option<f64>,
     /// Process at most this many frames [pipeline.max_frames].
     #[arg(long)]
     max_frames: Option<usize>,
@@ -94,6 +98,9 @@ impl RunArgs {
         }
         if let Some(v) = self.ba_window {
             p.ba_window = v;
+        }
+        if let Some(v) = self.keyframe_ratio {
+            p.keyframe_ratio = v;
         }
         if let Some(v) = self.max_frames {
             p.max_frames = v;

@@ -32,6 +32,37 @@ fn runs_deterministically_with_report_and_evaluation() {
     assert!(a.join("trajectory_xz.png").is_file());
 }
 
+/// `--keyframe-ratio` (ORB-SLAM's keyframe rule, off by default) makes a keyframe whenever
+/// fewer landmarks are tracked than that fraction of the reference keyframe's established
+/// ones: at 0.9 the run on KITTI 00's first 40 frames has more keyframes than without it.
+#[test]
+fn the_keyframe_ratio_rule_adds_keyframes() {
+    let Some(seq) = common::shared_data("kitti/sequences/00") else {
+        return;
+    };
+    if !common::models_ready() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let keyframes = |report: &serde_json::Value| {
+        report["frames_detail"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|f| f["keyframe"] == true)
+            .count()
+    };
+    let off = common::run_inprocess(&seq, &tmp.path().join("off"), &["--max-frames", "40"]);
+    let on = common::run_inprocess(
+        &seq,
+        &tmp.path().join("on"),
+        &["--max-frames", "40", "--keyframe-ratio", "0.9"],
+    );
+    let (k_off, k_on) = (keyframes(&off), keyframes(&on));
+    eprintln!("keyframes: {k_off} without the ratio rule, {k_on} with 0.9");
+    assert!(k_off >= 5 && k_on > k_off, "{k_off} vs {k_on}");
+}
+
 #[test]
 fn bad_sequences_are_clear_errors() {
     let d = tempfile::tempdir().unwrap();
