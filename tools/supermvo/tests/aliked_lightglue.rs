@@ -6,7 +6,6 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
 mod common;
 
-use std::process::Command;
 use supermvo_config::{Frontend, PipelineConfig};
 use supermvo_dataset::{GrayImage, KittiSequence};
 use supermvo_geometry::essential::RansacConfig;
@@ -115,33 +114,13 @@ fn without_the_models_the_run_says_how_to_fetch_them() {
     if !common::models_ready() {
         return;
     }
-    let home = std::env::var_os("SUPERMVO_CACHE")
-        .map(std::path::PathBuf::from)
-        .unwrap_or_else(|| {
-            std::path::PathBuf::from(std::env::var("HOME").unwrap()).join(".cache/supermvo")
-        });
     let cache = tempfile::tempdir().unwrap();
-    let r = Command::new(env!("CARGO_BIN_EXE_supermvo"))
-        .arg("run")
-        .arg(&seq)
-        .args([
-            "--mode",
-            "inprocess",
-            "-q",
-            "--frontend",
-            "aliked-lightglue",
-            "--max-frames",
-            "3",
-        ])
-        .arg("--out")
-        .arg(cache.path().join("out"))
-        .env("SUPERMVO_CACHE", cache.path())
-        .env(
-            "ORT_DYLIB_PATH",
-            home.join("onnxruntime/1.31.1/libonnxruntime.so.1.31.1"),
-        )
-        .output()
-        .unwrap();
+    let r = common::run_frontend_with_cache(
+        cache.path(),
+        &seq,
+        "aliked-lightglue",
+        &["--max-frames", "3"],
+    );
     let err = String::from_utf8_lossy(&r.stderr);
     assert!(!r.status.success());
     assert!(!err.contains("panicked"), "{err}");

@@ -6,12 +6,9 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn cache_models() -> Option<(PathBuf, PathBuf)> {
-    let home = std::env::var_os("SUPERMVO_CACHE")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(&std::env::var("HOME").unwrap()).join(".cache/supermvo"));
     let (lib, model) = (
-        home.join("onnxruntime/1.31.1/libonnxruntime.so.1.31.1"),
-        home.join("models/xfeat.onnx"),
+        common::runtime_library(),
+        common::cache_dir().join("models/xfeat.onnx"),
     );
     if lib.is_file() && model.is_file() {
         return Some((lib, model));

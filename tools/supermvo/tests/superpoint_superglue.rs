@@ -5,41 +5,32 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
 mod common;
 
-use std::path::PathBuf;
+use std::path::Path;
 use std::process::Command;
 
-fn runtime_library() -> PathBuf {
-    let home = std::env::var_os("SUPERMVO_CACHE")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(std::env::var("HOME").unwrap()).join(".cache/supermvo"));
-    home.join("onnxruntime/1.31.1/libonnxruntime.so.1.31.1")
+/// `supermvo run` of KITTI 00's first frames through the SuperPoint + SuperGlue front end,
+/// with the model cache at `cache`; output in `cache/out`.
+fn run_spsg(cache: &Path, seq: &Path, extra: &[&str]) -> std::process::Output {
+    common::run_frontend_with_cache(cache, seq, "superpoint-superglue", extra)
 }
 
-/// `supermvo run` of KITTI 00's first frames through the SuperPoint + SuperGlue front end,
-/// with the model cache at `cache` (ONNX Runtime from the usual cache); output in
-/// `cache/out`.
-fn run_spsg(
-    cache: &std::path::Path,
-    seq: &std::path::Path,
-    extra: &[&str],
-) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_supermvo"))
-        .arg("run")
-        .arg(seq)
-        .args([
-            "--mode",
-            "inprocess",
-            "-q",
-            "--frontend",
-            "superpoint-superglue",
-        ])
-        .arg("--out")
-        .arg(cache.join("out"))
+/// Writes the random-weight SuperPoint and SuperGlue models into `dir/models` with
+/// tools/models/test_superpoint_superglue.py (which first checks the graphs); `extra` adds
+/// its arguments.
+fn write_random_models(dir: &Path, extra: &[std::ffi::OsString]) {
+    let made = Command::new("python3")
+        .arg(common::root().join("tools/models/test_superpoint_superglue.py"))
+        .arg("--write")
+        .arg(dir)
         .args(extra)
-        .env("SUPERMVO_CACHE", cache)
-        .env("ORT_DYLIB_PATH", runtime_library())
         .output()
-        .unwrap()
+        .unwrap();
+    assert!(
+        made.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&made.stdout),
+        String::from_utf8_lossy(&made.stderr)
+    );
 }
 
 #[test]
@@ -71,19 +62,7 @@ fn random_weight_models_run_through_the_pipeline() {
         return;
     }
     let cache = tempfile::tempdir().unwrap();
-    let script = common::root().join("tools/models/test_superpoint_superglue.py");
-    let made = Command::new("python3")
-        .arg(&script)
-        .arg("--write")
-        .arg(cache.path())
-        .output()
-        .unwrap();
-    assert!(
-        made.status.success(),
-        "{}{}",
-        String::from_utf8_lossy(&made.stdout),
-        String::from_utf8_lossy(&made.stderr)
-    );
+    write_random_models(cache.path(), &[]);
     let r = run_spsg(cache.path(), &seq, &["--top-k", "256", "--max-frames", "4"]);
     let out = cache.path().join("out");
     let err = String::from_utf8_lossy(&r.stderr);
@@ -125,26 +104,20 @@ fn superpoint_postprocessing_matches_the_reference() {
     let dir = tempfile::tempdir().unwrap();
     let raw = dir.path().join("crop.raw");
     std::fs::write(&raw, &crop.data).unwrap();
-    let made = Command::new("python3")
-        .arg(common::root().join("tools/models/test_superpoint_superglue.py"))
-        .arg("--write")
-        .arg(dir.path())
-        .arg("--image")
-        .arg(&raw)
-        .args([w.to_string(), h.to_string()])
-        .output()
-        .unwrap();
-    assert!(
-        made.status.success(),
-        "{}{}",
-        String::from_utf8_lossy(&made.stdout),
-        String::from_utf8_lossy(&made.stderr)
+    write_random_models(
+        dir.path(),
+        &[
+            "--image".into(),
+            raw.into(),
+            w.to_string().into(),
+            h.to_string().into(),
+        ],
     );
     let expected: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(dir.path().join("superpoint_expected.json")).unwrap(),
     )
     .unwrap();
-    supermvo_inference::runtime::init(Some(&runtime_library())).unwrap();
+    supermvo_inference::runtime::init(Some(&common::runtime_library())).unwrap();
     let mut sp = SuperPoint::new(
         &dir.path().join("models/superpoint.onnx"),
         SuperPointConfig {

@@ -102,6 +102,34 @@ pub fn gradient_png(w: u32, h: u32) -> Vec<u8> {
     png
 }
 
+/// supermvo's cache: `$SUPERMVO_CACHE`, else `~/.cache/supermvo`.
+pub fn cache_dir() -> PathBuf {
+    std::env::var_os("SUPERMVO_CACHE")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(&std::env::var("HOME").unwrap()).join(".cache/supermvo"))
+}
+
+/// The ONNX Runtime library `supermvo models fetch onnxruntime` unpacks into the cache.
+pub fn runtime_library() -> PathBuf {
+    cache_dir().join("onnxruntime/1.31.1/libonnxruntime.so.1.31.1")
+}
+
+/// `supermvo run SEQ --mode inprocess -q --frontend FRONTEND` with the model cache at `cache`
+/// (ONNX Runtime from the usual cache), output in `cache/out`.
+pub fn run_frontend_with_cache(cache: &Path, seq: &Path, frontend: &str, extra: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_supermvo"))
+        .arg("run")
+        .arg(seq)
+        .args(["--mode", "inprocess", "-q", "--frontend", frontend])
+        .arg("--out")
+        .arg(cache.join("out"))
+        .args(extra)
+        .env("SUPERMVO_CACHE", cache)
+        .env("ORT_DYLIB_PATH", runtime_library())
+        .output()
+        .unwrap()
+}
+
 /// Whether ONNX Runtime and the default models are in the cache; when not, prints why (the
 /// test then skips), unless `SUPERMVO_REQUIRE_SHARED=1`, in which case it fails.
 pub fn models_ready() -> bool {
@@ -111,12 +139,8 @@ pub fn models_ready() -> bool {
 /// ONNX Runtime and the cached models `names` are there (skip, or fail when
 /// `SUPERMVO_REQUIRE_SHARED=1`, otherwise).
 pub fn models_ready_for(names: &[&str]) -> bool {
-    let home = std::env::var_os("SUPERMVO_CACHE")
-        .map(std::path::PathBuf::from)
-        .unwrap_or_else(|| Path::new(&std::env::var("HOME").unwrap()).join(".cache/supermvo"));
-    let ok = home
-        .join("onnxruntime/1.31.1/libonnxruntime.so.1.31.1")
-        .is_file()
+    let home = cache_dir();
+    let ok = runtime_library().is_file()
         && names
             .iter()
             .all(|n| home.join(format!("models/{n}.onnx")).is_file());
