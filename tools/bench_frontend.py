@@ -2,7 +2,7 @@
 """Benchmark: the learned front end in Rust (ort) next to Python onnxruntime, in one run.
 
 Both run the same ONNX files from the model cache with the same settings (intra-op
-threads 2, inter-op 1, default graph optimisation) on inputs of the same shapes: XFeat on
+threads 2, inter-op 1, default graph optimisation, subnormals flushed to zero) on inputs of the same shapes: XFeat on
 a KITTI frame resized to multiples of 32, LighterGlue at 1024 and 2048 keypoints on the
 very keypoints and descriptors XFeat found on the two frames (the Rust side writes them with
 `--dump`), with point pruning (width_confidence 0.95, the default), without it (-1), and
@@ -42,6 +42,7 @@ def python_medians(runs, threads, size, keypoints, dump, sizes, rust, seq):
     from PIL import Image
     opts = ort.SessionOptions()
     opts.intra_op_num_threads, opts.inter_op_num_threads = threads, 1
+    opts.add_session_config_entry("session.set_denormal_as_zero", "1")  # as the Rust sessions do
     models = os.path.join(cache(), "models")
     xs = ort.InferenceSession(os.path.join(models, "xfeat.onnx"), opts, providers=["CPUExecutionProvider"])
     ls = ort.InferenceSession(os.path.join(models, "lighterglue.onnx"), opts, providers=["CPUExecutionProvider"])
