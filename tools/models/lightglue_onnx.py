@@ -25,9 +25,13 @@ scalar) the number of layers that ran (LightGlue's `stop`).
 `heads` > 1 (LightGlue proper: 4 heads of 64 over 256 dimensions, 9 layers) splits self and
 cross attention into heads as rank-4 tensors [1, heads, N, head]; LighterGlue has one head.
 Each weight is one initializer shared by both images and every branch.
-Implementation notes: the interleaved q/k/v split of `Wqkv` is a reshape to [.., D, 3];
-`rotate_half` and the frequency `repeat_interleave` are constant matrices; GELU is exact
-(erf); LayerNorm eps is 1e-5.
+Implementation notes: `Wqkv`'s interleaved rows are regrouped into one MatMul giving q,
+rotate_half(q), k, rotate_half(k) and v (rotate_half, a signed permutation, folded into
+copies of the q and k weights: the same numbers without a reshape, gathers and two small
+MatMuls); the frequency `repeat_interleave` is a constant matrix; GELU is exact (erf,
+written as ONNX Runtime's Gelu fusion expects it); LayerNorm eps is 1e-5. Subnormal floats
+in the attention make these graphs several times slower on x86 unless the runtime flushes
+them to zero (supermvo's sessions do).
 """
 import math
 
@@ -79,7 +83,7 @@ class _G:
         h = self.op("LayerNormalization", [h, self.c(self.w(f"{key}.ffn.1.weight")), self.c(self.w(f"{key}.ffn.1.bias"))],
                     axis=-1, epsilon=1e-5)
         # exact GELU: 0.5 x (1 + erf(x / sqrt 2))
-        e = self.op("Erf", [self.op("Mul", [h, self.c(np.float32(1 / math.sqrt(2)))])])
+        e = self.op("Erf", [self.op("Div", [h, self.c(np.float32(math.sqrt(2)))])])
         h = self.op("Mul", [self.op("Mul", [h, self.op("Add", [e, self.c(np.float32(1))])]), self.c(np.float32(0.5))])
         return self.op("Add", [x, self.linear(h, f"{key}.ffn.3")])
 
@@ -92,17 +96,17 @@ def build(sd, prefix="matcher.", n_layers=6, dim=96, name="lighterglue", adaptiv
     for i in range(head // 2):
         rot[2 * i + 1, 2 * i] = -1.0
         rot[2 * i, 2 * i + 1] = 1.0
-    rot_c = g.c(rot)
-    expand = np.zeros((head // 2, head), np.float32)
-    for i in range(head // 2):
-        expand[i, 2 * i] = expand[i, 2 * i + 1] = 1.0
+    rot = np.kron(np.eye(heads, dtype=np.float32), rot)  # per head, on [.., dim]
+    expand = np.zeros((head // 2, dim), np.float32)  # repeat_interleave(2), then the same for every head
+    for h in range(heads):
+        for i in range(head // 2):
+            expand[i, h * head + 2 * i] = expand[i, h * head + 2 * i + 1] = 1.0
     expand_c = g.c(expand)
     wr = g.c(g.w("posenc.Wr.weight").T)
-    shape_qkv = g.c(np.array([1, -1, dim, 3], np.int64), np.int64) if heads == 1 else None
     inv_sqrt = np.float32(1 / math.sqrt(head))
     f32, i64 = TensorProto.FLOAT, TensorProto.INT64
 
-    def encoding(k):
+    def encoding(k):  # [1, N, dim]: with several heads, every head gets the same encoding
         proj = g.op("MatMul", [k, wr])
         return (g.op("MatMul", [g.op("Cos", [proj]), expand_c]), g.op("MatMul", [g.op("Sin", [proj]), expand_c]))
 
@@ -119,14 +123,12 @@ def build(sd, prefix="matcher.", n_layers=6, dim=96, name="lighterglue", adaptiv
         """LightGlue with several attention heads (rank-4 tensors [1, heads, N, head])."""
         x = list(x)
         key = f"transformers.{layer}.self_attn"
-        shape5 = g.c(np.array([1, -1, heads, head, 3], np.int64), np.int64)
         for s in range(2):
-            qkv = g.op("Reshape", [g.linear(x[s], f"{key}.Wqkv"), shape5])
-            q, k, v = (g.op("Transpose", [g.op("Gather", [qkv, g.c(np.int64(j), np.int64)], axis=4)], perm=[0, 2, 1, 3])
-                       for j in range(3))
-            cos, sin = enc[s]  # [1, N, head], broadcast over heads
-            q = g.op("Add", [g.op("Mul", [q, cos]), g.op("Mul", [g.op("MatMul", [q, rot_c]), sin])])
-            k = g.op("Add", [g.op("Mul", [k, cos]), g.op("Mul", [g.op("MatMul", [k, rot_c]), sin])])
+            q, q_rot, k, k_rot, v = split_qkv(x[s], key)
+            cos, sin = enc[s]  # [1, N, dim]: one head's encoding repeated for every head
+            q = split(g.op("Add", [g.op("Mul", [q, cos]), g.op("Mul", [q_rot, sin])]))
+            k = split(g.op("Add", [g.op("Mul", [k, cos]), g.op("Mul", [k_rot, sin])]))
+            v = split(v)
             att = g.op("Softmax", [g.op("Mul", [g.op("MatMul", [q, t4(k)]), g.c(inv_sqrt)])], axis=-1)
             msg = g.linear(merge(g.op("MatMul", [att, v])), f"{key}.out_proj")
             x[s] = g.ffn(x[s], msg, key)
@@ -139,17 +141,41 @@ def build(sd, prefix="matcher.", n_layers=6, dim=96, name="lighterglue", adaptiv
         m1 = merge(g.op("MatMul", [g.op("Softmax", [t4(sim)], axis=-1), v0]))
         return [g.ffn(x[0], g.linear(m0, f"{key}.to_out"), key), g.ffn(x[1], g.linear(m1, f"{key}.to_out"), key)]
 
+    qkv_weights = {}
+
+    def split_qkv(x, key):
+        """q, rotate_half(q), k, rotate_half(k), v from one MatMul: `Wqkv`'s interleaved rows
+        regrouped, and rotate_half (a signed permutation) folded into copies of the q and k
+        weights, so the products are the same numbers without a reshape, gathers and two
+        small MatMuls."""
+        if key not in qkv_weights:
+            w, b = g.w(f"{key}.Wqkv.weight"), g.w(f"{key}.Wqkv.bias")  # [3 dim, dim], rows d * 3 + j
+            parts_w, parts_b = [], []
+            for j, with_rot in ((0, True), (1, True), (2, False)):
+                wj, bj = w[j::3].T, b[j::3]
+                parts_w.append(wj)
+                parts_b.append(bj)
+                if with_rot:
+                    parts_w.append(wj @ rot)
+                    parts_b.append(bj @ rot)
+            qkv_weights[key] = (g.c(np.concatenate(parts_w, axis=1)), g.c(np.concatenate(parts_b)))
+        w, b = qkv_weights[key]
+        y = g.op("Add", [g.op("MatMul", [x, w]), b])
+        outs = [f"{y}_{i}" for i in range(5)]
+        g.n += 1
+        g.nodes.append(helper.make_node("Split", [y, g.c(np.full(5, dim, np.int64), np.int64)], outs, name=f"n{g.n}_Split", axis=-1))
+        return outs
+
     def transformer(layer, x, enc):
         if heads > 1:
             return transformer_heads(layer, x, enc)
         x = list(x)
         key = f"transformers.{layer}.self_attn"
         for s in range(2):
-            qkv = g.op("Reshape", [g.linear(x[s], f"{key}.Wqkv"), shape_qkv])
-            q, k, v = (g.op("Gather", [qkv, g.c(np.int64(j), np.int64)], axis=3) for j in range(3))
+            q, q_rot, k, k_rot, v = split_qkv(x[s], key)
             cos, sin = enc[s]
-            q = g.op("Add", [g.op("Mul", [q, cos]), g.op("Mul", [g.op("MatMul", [q, rot_c]), sin])])
-            k = g.op("Add", [g.op("Mul", [k, cos]), g.op("Mul", [g.op("MatMul", [k, rot_c]), sin])])
+            q = g.op("Add", [g.op("Mul", [q, cos]), g.op("Mul", [q_rot, sin])])
+            k = g.op("Add", [g.op("Mul", [k, cos]), g.op("Mul", [k_rot, sin])])
             att = g.op("Softmax", [g.op("Mul", [g.op("MatMul", [q, g.t(k)]), g.c(inv_sqrt)])], axis=-1)
             msg = g.linear(g.op("MatMul", [att, v]), f"{key}.out_proj")
             x[s] = g.ffn(x[s], msg, key)
