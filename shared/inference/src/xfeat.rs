@@ -47,17 +47,18 @@ pub struct XFeat {
     device: Device,
 }
 
-/// Raw network outputs for one image (channel-major, `h = H/8`, `w = W/8`).
-#[derive(Debug, Clone)]
-pub struct XFeatRaw {
+/// Raw network outputs for one image (channel-major, `h = H/8`, `w = W/8`), borrowed from
+/// the runtime's output tensors.
+#[derive(Debug, Clone, Copy)]
+pub struct XFeatRaw<'a> {
     /// Network input height and width (multiples of 32).
     pub input_size: (usize, usize),
     /// Dense descriptors `[64, h, w]`.
-    pub descriptors: Vec<f32>,
+    pub descriptors: &'a [f32],
     /// Keypoint logits `[65, h, w]`.
-    pub keypoint_logits: Vec<f32>,
+    pub keypoint_logits: &'a [f32],
     /// Reliability `[h, w]`.
-    pub reliability: Vec<f32>,
+    pub reliability: &'a [f32],
 }
 
 const INPUTS: [&str; 1] = ["image"];
@@ -81,13 +82,15 @@ impl XFeat {
         self.device
     }
 
-    /// Runs the network on an image already sized to multiples of 32, values in [0, 1].
-    pub fn run_raw(
+    /// Runs the network on an image already sized to multiples of 32, values in [0, 1], and
+    /// hands `f` its outputs in place (no copy).
+    pub fn with_raw<R>(
         &mut self,
         input: &[f32],
         height: usize,
         width: usize,
-    ) -> Result<XFeatRaw, InferenceError> {
+        f: impl FnOnce(&XFeatRaw<'_>) -> R,
+    ) -> Result<R, InferenceError> {
         let err = |e: ort::Error| InferenceError::Run {
             model: "xfeat".into(),
             message: e.to_string(),
@@ -98,16 +101,16 @@ impl XFeat {
             .session
             .run(ort::inputs!["image" => tensor])
             .map_err(err)?;
-        let take = |name: &str| -> Result<Vec<f32>, InferenceError> {
+        let view = |name: &str| -> Result<&[f32], InferenceError> {
             let (_, data) = outputs[name].try_extract_tensor::<f32>().map_err(err)?;
-            Ok(data.to_vec())
+            Ok(data)
         };
-        Ok(XFeatRaw {
+        Ok(f(&XFeatRaw {
             input_size: (height, width),
-            descriptors: take("descriptors")?,
-            keypoint_logits: take("keypoint_logits")?,
-            reliability: take("reliability")?,
-        })
+            descriptors: view("descriptors")?,
+            keypoint_logits: view("keypoint_logits")?,
+            reliability: view("reliability")?,
+        }))
     }
 }
 
@@ -243,18 +246,17 @@ pub fn postprocess(raw: &XFeatRaw, image_size: (usize, usize), cfg: &XFeatConfig
     scored.sort_by(|a, b| b.0.total_cmp(&a.0));
     scored.truncate(cfg.top_k);
     scored.retain(|s| s.0 > 0.0);
-    // dense descriptors, L2-normalised per cell
-    let mut dense = raw.descriptors.clone();
-    for i in 0..cells {
-        let n: f32 = (0..64)
-            .map(|c| dense[c * cells + i].powi(2))
-            .sum::<f32>()
-            .sqrt()
-            .max(1e-12);
-        for c in 0..64 {
-            dense[c * cells + i] /= n;
-        }
-    }
+    // dense descriptors, L2-normalised per cell (divided by the cell's norm where sampled)
+    let dense = raw.descriptors;
+    let norms: Vec<f32> = (0..cells)
+        .map(|i| {
+            (0..64)
+                .map(|c| dense[c * cells + i].powi(2))
+                .sum::<f32>()
+                .sqrt()
+                .max(1e-12)
+        })
+        .collect();
     let (rw, rh) = (image_size.0 as f32 / wf, image_size.1 as f32 / hf);
     let mut out = Features {
         dim: 64,
@@ -282,7 +284,7 @@ pub fn postprocess(raw: &XFeatRaw, image_size: (usize, usize), cfg: &XFeatConfig
                 let wgt = wyj * wxi;
                 let base = yy as usize * w8 + xx as usize;
                 for (c, dc) in d.iter_mut().enumerate() {
-                    *dc += wgt * dense[c * cells + base];
+                    *dc += wgt * (dense[c * cells + base] / norms[base]);
                 }
             }
         }
@@ -304,8 +306,10 @@ impl Extractor for XFeat {
         }
         let (w32, h32) = ((image.width / 32) * 32, (image.height / 32) * 32);
         let input = resize_bilinear(image, w32, h32);
-        let raw = self.run_raw(&input, h32, w32)?;
-        Ok(postprocess(&raw, (image.width, image.height), &self.cfg))
+        let cfg = self.cfg.clone();
+        self.with_raw(&input, h32, w32, |raw| {
+            postprocess(raw, (image.width, image.height), &cfg)
+        })
     }
 }
 
@@ -342,11 +346,13 @@ mod tests {
         }
         let cell = 3 * 8 + 2;
         logits[(6 * 8 + 5) * cells + cell] = 30.0;
+        let descriptors: Vec<f32> = (0..64 * cells).map(|i| (i % 7) as f32 + 1.0).collect();
+        let reliability = vec![0.5; cells];
         let raw = XFeatRaw {
             input_size: (hh, ww),
-            descriptors: (0..64 * cells).map(|i| (i % 7) as f32 + 1.0).collect(),
-            keypoint_logits: logits,
-            reliability: vec![0.5; cells],
+            descriptors: &descriptors,
+            keypoint_logits: &logits,
+            reliability: &reliability,
         };
         let f = postprocess(&raw, (128, 64), &XFeatConfig::default());
         assert_eq!(f.len(), 1);

@@ -174,7 +174,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     let input = resize_bilinear(&a, w, h);
     result.insert(
         "xfeat_network_ms".into(),
-        median_ms(|| Ok(xfeat.run_raw(&input, h, w).map(|_| ())?), *runs)?.into(),
+        median_ms(|| Ok(xfeat.with_raw(&input, h, w, |_| ())?), *runs)?.into(),
     );
     result.insert(
         "xfeat_extract_ms".into(),
