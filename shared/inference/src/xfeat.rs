@@ -233,7 +233,7 @@ pub fn postprocess(raw: &XFeatRaw, image_size: (usize, usize), cfg: &XFeatConfig
                 0.0
             };
             let rv = sample_bilinear(
-                &raw.reliability,
+                raw.reliability,
                 w8,
                 h8,
                 to_grid(x as f32, wf, w8 as f32),
