@@ -417,23 +417,18 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("pipeline.name"), "{err}");
-        for bad in ["1.5", "0.0", "-0.5"] {
-            let err = Config::from_toml(
-                &format!("[pipeline]\ndepth_confidence = {bad}\n"),
-                Path::new("c.toml"),
-            )
-            .unwrap_err()
-            .to_string();
-            assert!(err.contains("pipeline.depth_confidence"), "{err}");
-        }
-        for bad in ["1.5", "-0.1"] {
-            let err = Config::from_toml(
-                &format!("[pipeline]\nkeyframe_ratio = {bad}\n"),
-                Path::new("c.toml"),
-            )
-            .unwrap_err()
-            .to_string();
-            assert!(err.contains("pipeline.keyframe_ratio"), "{err}");
+        for (key, bad) in [
+            ("depth_confidence", "1.5"),
+            ("depth_confidence", "0.0"),
+            ("depth_confidence", "-0.5"),
+            ("keyframe_ratio", "1.5"),
+            ("keyframe_ratio", "-0.1"),
+        ] {
+            let err =
+                Config::from_toml(&format!("[pipeline]\n{key} = {bad}\n"), Path::new("c.toml"))
+                    .unwrap_err()
+                    .to_string();
+            assert!(err.contains(&format!("pipeline.{key}")), "{err}");
         }
         let cfg = Config::from_toml("[pipeline]\nkeyframe_ratio = 0.9\n", Path::new("c.toml"));
         assert_eq!(cfg.unwrap().pipeline.keyframe_ratio, 0.9);
