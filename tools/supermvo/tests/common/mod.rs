@@ -102,17 +102,10 @@ pub fn gradient_png(w: u32, h: u32) -> Vec<u8> {
     png
 }
 
-/// supermvo's cache: `$SUPERMVO_CACHE`, else `~/.cache/supermvo`.
-pub fn cache_dir() -> PathBuf {
-    std::env::var_os("SUPERMVO_CACHE")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(&std::env::var("HOME").unwrap()).join(".cache/supermvo"))
-}
-
+/// supermvo's cache, as the product resolves it.
+pub use supermvo_inference::runtime::cache_dir;
 /// The ONNX Runtime library `supermvo models fetch onnxruntime` unpacks into the cache.
-pub fn runtime_library() -> PathBuf {
-    cache_dir().join("onnxruntime/1.31.1/libonnxruntime.so.1.31.1")
-}
+pub use supermvo_inference::runtime::default_library_path as runtime_library;
 
 /// `supermvo run SEQ --mode inprocess -q --frontend FRONTEND` with the model cache at `cache`
 /// (ONNX Runtime from the usual cache), output in `cache/out`.
