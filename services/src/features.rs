@@ -25,6 +25,7 @@ pub fn extractor(cfg: &PipelineConfig) -> Result<Box<dyn Extractor + Send>> {
                 top_k: cfg.top_k,
                 threads: cfg.threads,
                 device: crate::common::device(cfg.device),
+                subpixel: cfg.subpixel_keypoints,
                 ..Default::default()
             },
         )?),

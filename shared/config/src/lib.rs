@@ -177,6 +177,10 @@ pub struct PipelineConfig {
     /// skipped once this fraction of the points is confident. In (0, 1), or -1 to run every
     /// layer.
     pub depth_confidence: f64,
+    /// XFeat keypoints at sub-pixel precision (a Gaussian fitted to the detection heatmap
+    /// around each maximum); false (the default) keeps the reference's integer pixel
+    /// positions.
+    pub subpixel_keypoints: bool,
 }
 
 impl Default for PipelineConfig {
@@ -202,6 +206,7 @@ impl Default for PipelineConfig {
             loop_closure: true,
             width_confidence: 0.95,
             depth_confidence: -1.0,
+            subpixel_keypoints: false,
         }
     }
 }
@@ -433,12 +438,13 @@ mod tests {
         let cfg = Config::from_toml("[pipeline]\nkeyframe_ratio = 0.9\n", Path::new("c.toml"));
         assert_eq!(cfg.unwrap().pipeline.keyframe_ratio, 0.9);
         let cfg = Config::from_toml(
-            "[pipeline]\nwidth_confidence = -1\ndepth_confidence = 0.95\n",
+            "[pipeline]\nwidth_confidence = -1\ndepth_confidence = 0.95\nsubpixel_keypoints = true\n",
             Path::new("c.toml"),
         )
         .unwrap();
         assert_eq!(cfg.pipeline.width_confidence, -1.0);
         assert_eq!(cfg.pipeline.depth_confidence, 0.95);
+        assert!(cfg.pipeline.subpixel_keypoints);
     }
 
     #[test]

@@ -10,6 +10,12 @@
 //!    `align_corners = false` on coordinates normalised by `(W - 1, H - 1)`;
 //! 5. the `top_k` best (stable order), descriptors sampled bicubically from the
 //!    L2-normalised dense map and L2-normalised again; coordinates scaled back.
+//!
+//! One step is ours and optional ([`XFeatConfig::subpixel`], off by default): the reference
+//! returns integer pixel positions; with it each keypoint moves to the peak of a Gaussian
+//! fitted to the heatmap through the maximum and its neighbours, along x and along y.
+//! Scores and descriptors stay those of the integer position, so only the coordinates
+//! change.
 
 use crate::runtime::{open_session_on, Device};
 use crate::{Extractor, Features, GrayImage, InferenceError};
@@ -26,6 +32,10 @@ pub struct XFeatConfig {
     pub threads: usize,
     /// Where the network runs (CUDA falls back to the CPU, with a warning, when unusable).
     pub device: Device,
+    /// Sub-pixel keypoints: each coordinate moves to the vertex of the parabola through the
+    /// log-heatmap at the maximum and its two neighbours (a Gaussian peak fit), at most half
+    /// a pixel. `false` (the default) gives the reference's integer positions.
+    pub subpixel: bool,
 }
 
 impl Default for XFeatConfig {
@@ -35,6 +45,7 @@ impl Default for XFeatConfig {
             detection_threshold: 0.05,
             threads: 2,
             device: Device::Cpu,
+            subpixel: false,
         }
     }
 }
@@ -146,6 +157,34 @@ fn cubic_weights(t: f32) -> [f32; 4] {
     let w1 = |x: f32| ((A + 2.0) * x - (A + 3.0)) * x * x + 1.0;
     let w2 = |x: f32| ((A * x - 5.0 * A) * x + 8.0 * A) * x - 4.0 * A;
     [w2(t + 1.0), w1(t), w1(1.0 - t), w2(2.0 - t)]
+}
+
+/// Offset of the heatmap's peak from the local maximum at `(x, y)`, per axis: the vertex of
+/// the parabola through the logarithms of the three values (exact for a Gaussian peak),
+/// clamped to half a pixel; 0 on the image border or where the three values do not bend
+/// down.
+fn subpixel_offset(heat: &[f32], (w, h): (usize, usize), (x, y): (usize, usize)) -> (f32, f32) {
+    let at = |xx: usize, yy: usize| heat[yy * w + xx].max(f32::MIN_POSITIVE).ln();
+    let vertex = |before: f32, centre: f32, after: f32| {
+        let curvature = before - 2.0 * centre + after;
+        if curvature < 0.0 {
+            (0.5 * (before - after) / curvature).clamp(-0.5, 0.5)
+        } else {
+            0.0
+        }
+    };
+    let c = at(x, y);
+    let dx = if x > 0 && x + 1 < w {
+        vertex(at(x - 1, y), c, at(x + 1, y))
+    } else {
+        0.0
+    };
+    let dy = if y > 0 && y + 1 < h {
+        vertex(at(x, y - 1), c, at(x, y + 1))
+    } else {
+        0.0
+    };
+    (dx, dy)
 }
 
 /// Post-processing of raw outputs into at most `top_k` features (see module docs).
@@ -290,7 +329,13 @@ pub fn postprocess(raw: &XFeatRaw, image_size: (usize, usize), cfg: &XFeatConfig
         }
         let n = d.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-12);
         out.descriptors.extend(d.iter().map(|v| v / n));
-        out.keypoints.push([x as f32 * rw, y as f32 * rh]);
+        let (dx, dy) = if cfg.subpixel {
+            subpixel_offset(&heat, (ww, hh), (x, y))
+        } else {
+            (0.0, 0.0)
+        };
+        out.keypoints
+            .push([(x as f32 + dx) * rw, (y as f32 + dy) * rh]);
         out.scores.push(s);
     }
     out
@@ -316,6 +361,34 @@ impl Extractor for XFeat {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn subpixel_offset_recovers_a_gaussian_peak() {
+        let (w, h) = (20usize, 16usize);
+        let (px, py) = (10.3f32, 7.8f32);
+        let heat: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                (-((x - px).powi(2) + (y - py).powi(2)) / (2.0 * 1.3f32.powi(2))).exp()
+            })
+            .collect();
+        let (dx, dy) = subpixel_offset(&heat, (w, h), (10, 8));
+        assert!(
+            (dx - 0.3).abs() < 1e-4 && (dy + 0.2).abs() < 1e-4,
+            "{dx} {dy}"
+        );
+        // no neighbour on one side: that axis stays put
+        assert_eq!(subpixel_offset(&heat, (w, h), (0, 8)).0, 0.0);
+        // a flat or rising neighbourhood is not a peak to fit
+        let flat = vec![0.25f32; w * h];
+        assert_eq!(subpixel_offset(&flat, (w, h), (10, 8)), (0.0, 0.0));
+        // a peak with one neighbour far above the other is clamped to half a pixel
+        let mut skew = vec![1e-30f32; w * h];
+        skew[8 * w + 10] = 1.0;
+        skew[8 * w + 11] = 0.999;
+        let (dx, _) = subpixel_offset(&skew, (w, h), (10, 8));
+        assert!(dx > 0.0 && dx <= 0.5, "{dx}");
+    }
 
     #[test]
     fn cubic_weights_sum_to_one_and_interpolate() {

@@ -86,6 +86,8 @@ fn keypoints_match_independent_end_to_end_export() {
         ours,
         XFeatConfig {
             top_k: 1024,
+            // the reference export returns integer positions
+            subpixel: false,
             ..Default::default()
         },
     )
@@ -127,5 +129,50 @@ fn keypoints_match_independent_end_to_end_export() {
         same as f32 >= 0.99 * f.len() as f32,
         "only {same} of {} keypoints found in both",
         f.len()
+    );
+}
+
+/// The optional sub-pixel fit moves the reference's keypoints by at most half a pixel (of
+/// the network's input grid) and changes nothing else: same keypoints in the same order,
+/// same scores and descriptors; most keypoints do move.
+#[test]
+fn subpixel_keypoints_refine_the_reference_positions() {
+    let Some((shared, m)) = common::setup(&["xfeat"]) else {
+        return;
+    };
+    let img = GrayImage::load(&shared.join("data/kitti/sequences/00/image_0/000000.png")).unwrap();
+    let open = |subpixel| {
+        XFeat::new(
+            &m[0],
+            XFeatConfig {
+                top_k: 1024,
+                subpixel,
+                ..Default::default()
+            },
+        )
+        .unwrap()
+    };
+    let integer = open(false).extract(&img).unwrap();
+    let refined = open(true).extract(&img).unwrap();
+    assert_eq!(integer.len(), refined.len());
+    assert_eq!(integer.scores, refined.scores);
+    assert_eq!(integer.descriptors, refined.descriptors);
+    // input-grid pixel in image pixels (1241x376 -> 1216x352)
+    let (rw, rh) = (img.width as f32 / 1216.0, img.height as f32 / 352.0);
+    let mut moved = 0;
+    for (a, b) in integer.keypoints.iter().zip(&refined.keypoints) {
+        let (dx, dy) = ((b[0] - a[0]) / rw, (b[1] - a[1]) / rh);
+        assert!(
+            dx.abs() <= 0.5 + 1e-4 && dy.abs() <= 0.5 + 1e-4,
+            "{a:?} -> {b:?}"
+        );
+        if dx != 0.0 || dy != 0.0 {
+            moved += 1;
+        }
+    }
+    assert!(
+        moved * 2 > refined.len(),
+        "only {moved} of {} keypoints moved",
+        refined.len()
     );
 }

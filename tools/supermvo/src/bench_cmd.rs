@@ -51,6 +51,9 @@ enum BenchCommand {
         /// Front end: xfeat-lighterglue, aliked-lightglue, orb or superpoint-superglue.
         #[arg(long, default_value = "xfeat-lighterglue")]
         frontend: String,
+        /// XFeat keypoints at sub-pixel precision (`pipeline.subpixel_keypoints`).
+        #[arg(long)]
+        subpixel_keypoints: bool,
     },
     /// The VO back of the pipeline without the networks: features and matches of a sequence
     /// are computed once, then the tracker (and the loop closer) replay them; medians per
@@ -147,10 +150,11 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             confidence,
             csv,
             frontend,
+            subpixel_keypoints,
         } => {
             return matching(
                 sequences,
-                (frontend, *top_k),
+                (frontend, *top_k, *subpixel_keypoints),
                 *threshold_px,
                 *confidence,
                 csv.as_deref(),
@@ -394,7 +398,7 @@ fn median(v: &mut [f64]) -> f64 {
 /// per sequence (median and mean of matches, inliers, inlier ratio).
 fn matching(
     sequences: &[PathBuf],
-    (frontend, top_k): (&str, usize),
+    (frontend, top_k, subpixel_keypoints): (&str, usize, bool),
     threshold_px: f64,
     confidence: f64,
     csv: Option<&std::path::Path>,
@@ -406,6 +410,7 @@ fn matching(
     let pipeline = supermvo_config::PipelineConfig {
         frontend: frontend.parse().map_err(anyhow::Error::msg)?,
         top_k,
+        subpixel_keypoints,
         ..Default::default()
     };
     let mut xfeat = supermvo_services::features::extractor(&pipeline)?;
