@@ -1,0 +1,259 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
+//! The tracker on synthetic features, where every error source is known: a camera drives
+//! forward at 1 m per frame through a field of points (60 frames straight, a 90-degree
+//! turn over 30 frames, straight again), every point with its own random descriptor;
+//! matches to the reference keyframe are right by construction except for a fraction
+//! replaced by random wrong ones; keypoints carry Gaussian noise, 30 % of them four times
+//! as much (a heavy tail). Measures the trajectory's scale (estimated / true distance over
+//! 10-frame steps) along the run.
+
+use supermvo_dataset::Calibration;
+use supermvo_geometry::{Mat3, Vec3};
+use supermvo_inference::{Features, Matches};
+use supermvo_vo::tracker::{FrameMeta, Tracker, TrackerConfig};
+
+/// xorshift64: deterministic across platforms.
+struct Rng(u64);
+impl Rng {
+    fn u(&mut self) -> f64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn gauss(&mut self) -> f64 {
+        let (a, b) = (self.u().max(1e-300), self.u());
+        (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
+    }
+}
+
+const W: usize = 1241;
+const H: usize = 376;
+const STRAIGHT: usize = 60;
+const TURN: usize = 30;
+const FRAMES: usize = 160;
+
+fn calib() -> Calibration {
+    Calibration {
+        fx: 718.856,
+        fy: 718.856,
+        cx: 607.19,
+        cy: 185.22,
+    }
+}
+
+/// Camera centre and heading (yaw about the camera's y axis, radians) at frame `k`.
+fn path(k: usize) -> (Vec3, f64) {
+    let mut c = Vec3::zeros();
+    let mut yaw = 0.0f64;
+    let rate = std::f64::consts::FRAC_PI_2 / TURN as f64;
+    for i in 0..k {
+        if (STRAIGHT..STRAIGHT + TURN).contains(&i) {
+            yaw += rate;
+        }
+        c += Vec3::new(yaw.sin(), 0.0, yaw.cos());
+    }
+    (c, yaw)
+}
+
+fn rot_y(a: f64) -> Mat3 {
+    Mat3::new(a.cos(), 0.0, a.sin(), 0.0, 1.0, 0.0, -a.sin(), 0.0, a.cos())
+}
+
+struct Scene {
+    points: Vec<Vec3>,
+    desc: Vec<Vec<f32>>,
+}
+
+/// 40 points per metre of path, 3-18 m to either side, from the ground (y = 1.65 m, y
+/// points down) to 3.35 m above the camera.
+fn scene(rng: &mut Rng) -> Scene {
+    let mut points = Vec::new();
+    for k in 0..FRAMES + 80 {
+        let (c, yaw) = path(k);
+        let r = rot_y(yaw);
+        for _ in 0..40 {
+            let mut x = rng.u() * 30.0 - 15.0;
+            if x.abs() < 3.0 {
+                x += 3.0 * x.signum();
+            }
+            let y = 1.65 - rng.u() * 5.0;
+            let z = rng.u() * 2.0 - 1.0;
+            points.push(c + r * Vec3::new(x, y, z));
+        }
+    }
+    let desc = (0..points.len())
+        .map(|_| {
+            let v: Vec<f32> = (0..64).map(|_| rng.gauss() as f32).collect();
+            let n = v.iter().map(|a| a * a).sum::<f32>().sqrt();
+            v.iter().map(|a| a / n).collect()
+        })
+        .collect();
+    Scene { points, desc }
+}
+
+/// Features of frame `k` (points 1-80 m ahead that land in the image, at most 2000) and
+/// the point id of each keypoint.
+fn observe(s: &Scene, k: usize, noise_px: f64, rng: &mut Rng) -> (Features, Vec<usize>) {
+    let c = calib();
+    let (centre, yaw) = path(k);
+    let r_cw = rot_y(yaw).transpose();
+    let mut f = Features {
+        keypoints: Vec::new(),
+        scores: Vec::new(),
+        descriptors: Vec::new(),
+        dim: 64,
+        image_size: (W, H),
+    };
+    let mut ids = Vec::new();
+    for (i, p) in s.points.iter().enumerate() {
+        let q = r_cw * (p - centre);
+        if q.z < 1.0 || q.z > 80.0 {
+            continue;
+        }
+        let sigma = if rng.u() < 0.3 {
+            4.0 * noise_px
+        } else {
+            noise_px
+        };
+        let u = c.fx * q.x / q.z + c.cx + sigma * rng.gauss();
+        let v = c.fy * q.y / q.z + c.cy + sigma * rng.gauss();
+        if u < 0.0 || v < 0.0 || u >= W as f64 || v >= H as f64 || ids.len() == 2000 {
+            continue;
+        }
+        f.keypoints.push([u as f32, v as f32]);
+        f.scores.push(1.0);
+        f.descriptors.extend_from_slice(&s.desc[i]);
+        ids.push(i);
+    }
+    (f, ids)
+}
+
+/// Runs the tracker over the whole path; per frame the estimated camera centre (when
+/// posed) and the true one.
+fn run(seed: u64, noise_px: f64, outliers: f64, cfg: TrackerConfig) -> Vec<(Option<Vec3>, Vec3)> {
+    let mut rng = Rng(0x9e37_79b9_7f4a_7c15 ^ seed.wrapping_mul(0x0123_4567));
+    let mut match_rng = Rng(12345 + seed);
+    let s = scene(&mut rng);
+    let mut tracker = Tracker::new(calib(), cfg);
+    let mut ids_of: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
+    let mut out = Vec::new();
+    for k in 0..FRAMES {
+        let (f, ids) = observe(&s, k, noise_px, &mut rng);
+        let matches = tracker.reference().map(|(reference, _)| {
+            let at: std::collections::HashMap<usize, usize> =
+                ids.iter().enumerate().map(|(j, &i)| (i, j)).collect();
+            let pairs: Vec<(usize, usize)> = ids_of[&reference]
+                .iter()
+                .enumerate()
+                .filter_map(|(a, i)| at.get(i).map(|&b| (a, b)))
+                .map(|(a, b)| {
+                    if match_rng.u() < outliers {
+                        (a, (match_rng.u() * ids.len() as f64) as usize % ids.len())
+                    } else {
+                        (a, b)
+                    }
+                })
+                .collect();
+            Matches {
+                scores: vec![1.0; pairs.len()],
+                pairs,
+            }
+        });
+        ids_of.insert(k, ids);
+        let meta = FrameMeta {
+            index: k,
+            stamp: k as f64 * 0.1,
+        };
+        let o = tracker.step(meta, f, matches.as_ref());
+        let est = o.pose.map(|p| Vec3::new(p[3], p[7], p[11]));
+        out.push((est, path(k).0));
+    }
+    out
+}
+
+/// Estimated / true distance over consecutive 10-frame steps, from 5 frames after the
+/// initialisation on.
+fn scale_steps(traj: &[(Option<Vec3>, Vec3)]) -> Vec<f64> {
+    let first = traj.iter().rposition(|t| t.0.is_none()).unwrap_or(0) + 5;
+    (first..traj.len() - 10)
+        .step_by(10)
+        .map(|a| {
+            let (Some(ea), Some(eb)) = (traj[a].0, traj[a + 10].0) else {
+                return f64::NAN;
+            };
+            (eb - ea).norm() / (traj[a + 10].1 - traj[a].1).norm()
+        })
+        .collect()
+}
+
+/// Largest relative change of the scale from its first step.
+fn worst_change(steps: &[f64]) -> f64 {
+    steps
+        .iter()
+        .map(|s| (s / steps[0] - 1.0).abs())
+        .fold(0.0, f64::max)
+}
+
+/// The geometry keeps one scale: with matches right by construction (plus 10 % random
+/// wrong ones) and 0.5 px keypoint noise (2 px for 30 % of the keypoints), the ratio of
+/// estimated to true distance stays within 2 % of its first value through the straight,
+/// the 90-degree turn and the second straight, with no frame lost, on each of three
+/// scenes. (Measured: within 1 % on each. KITTI's scale rises by 10-20 % over
+/// runs like this one: README, "Monocular VO".)
+#[test]
+fn one_scale_through_a_turn_on_synthetic_features() {
+    for seed in 0..3 {
+        let traj = run(seed, 0.5, 0.1, TrackerConfig::default());
+        // frame 0 is the reference (posed), the next frames wait for parallax; every
+        // frame from the initialisation on has a pose
+        let unposed = traj.iter().rposition(|t| t.0.is_none()).unwrap_or(0);
+        assert!(unposed <= 10, "scene {seed}: frame {unposed} has no pose");
+        let steps = scale_steps(&traj);
+        println!("scene {seed}, scale per 10 frames: {steps:.3?}");
+        assert!(steps.len() >= 14, "scene {seed}: {} steps", steps.len());
+        let worst = worst_change(&steps);
+        assert!(worst < 0.02, "scene {seed}: scale changed by {worst:.4}");
+    }
+}
+
+/// The same runs without the local bundle adjustment drift: their scale changes by more
+/// than 3 % on average over the three scenes (measured: 16, 1.7 and 9 %; a random walk,
+/// so one scene may stay close), so the test above can fail.
+#[test]
+fn without_bundle_adjustment_the_scale_drifts() {
+    let cfg = TrackerConfig {
+        local_ba_window: 0,
+        ..TrackerConfig::default()
+    };
+    let mut worst = Vec::new();
+    for seed in 0..3 {
+        let steps = scale_steps(&run(seed, 0.5, 0.1, cfg.clone()));
+        println!("scene {seed} without BA, scale per 10 frames: {steps:.3?}");
+        worst.push(worst_change(&steps));
+    }
+    let mean = worst.iter().sum::<f64>() / worst.len() as f64;
+    assert!(mean > 0.03, "scale changes {worst:.4?}");
+}
+
+/// Not a check, a measurement (README, "Monocular VO"): with noise like KITTI's (0.75 px,
+/// 30 % of keypoints at 3 px) the scale walks through the turn, less with a longer local
+/// BA window. `cargo test --release -p supermvo-vo --test synthetic_scale -- --ignored
+/// --nocapture` prints the last step's scale over the first for six scenes per window.
+#[test]
+#[ignore]
+fn scale_walk_with_kitti_like_noise() {
+    for window in [6, 10, 20] {
+        let cfg = TrackerConfig {
+            local_ba_window: window,
+            ..TrackerConfig::default()
+        };
+        let ratios: Vec<f64> = (0..6)
+            .map(|seed| {
+                let steps = scale_steps(&run(seed, 0.75, 0.1, cfg.clone()));
+                steps[steps.len() - 1] / steps[0]
+            })
+            .collect();
+        println!("window {window}: last / first step {ratios:.3?}");
+    }
+}
