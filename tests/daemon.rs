@@ -6,6 +6,7 @@
 //!   accounted for, nothing is left in shared memory;
 //! - a hung (stopped) stage is restarted after the deadline;
 //! - SIGINT/SIGTERM shut down cleanly with the trajectory written;
+//! - stages whose supervisor is killed stop instead of lingering;
 //! - bad input: missing stage binaries, bad config, a second pipeline of the same name.
 //!
 //! The tests run one at a time (they watch the shared-memory directories).
@@ -74,7 +75,16 @@ fn setup(
     if need_models && !models_ready() {
         return None;
     }
+    // what processes of an earlier, crashed run left goes now, not while a test watches
+    cleanup_dead_nodes();
     Some((guard, seq, ipc_files()))
+}
+
+/// Removes the shared memory of dead iceoryx2 nodes, as a starting supervisor does.
+fn cleanup_dead_nodes() {
+    let services = supermvo_messages::Services::new(&format!("cleanup-{}", std::process::id()));
+    let node = supermvo_messages::create_node(&services.node_name("cleanup", 0).unwrap()).unwrap();
+    node.try_cleanup_dead_nodes();
 }
 
 fn bin_dir() -> PathBuf {
@@ -377,6 +387,87 @@ fn sigint_and_sigterm_shut_down_cleanly_with_the_trajectory_written() {
         );
         assert_eq!(ipc_files(), before, "{signal:?}: shared memory left behind");
     }
+}
+
+/// Whether process `pid` has ended (gone, or a zombie nobody reaps).
+fn process_ended(pid: i32) -> bool {
+    match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
+        Ok(stat) => stat
+            .rsplit_once(')')
+            .is_some_and(|(_, rest)| rest.trim_start().starts_with('Z')),
+        Err(_) => true,
+    }
+}
+
+#[test]
+fn stages_stop_when_their_supervisor_is_killed() {
+    let Some((_g, seq_dir, before)) = setup("07", true) else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let name = format!("orphans-{}", std::process::id());
+    let config = tmp.path().join("config.toml");
+    std::fs::write(&config, format!("[pipeline]\nname = \"{name}\"\n")).unwrap();
+    let out = tmp.path().join("out");
+    let mut supervisor = std::process::Command::new(bin_dir().join("supermvo-supervisor"))
+        .arg("--config")
+        .arg(&config)
+        .arg("--seq")
+        .arg(&seq_dir)
+        .arg("--out")
+        .arg(&out)
+        .arg("--quiet")
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // wait until every stage runs and frames flow
+    let t0 = Instant::now();
+    let pids: Vec<i32> = loop {
+        assert!(
+            t0.elapsed() < Duration::from_secs(120),
+            "the pipeline never started"
+        );
+        let recorded = read_records(&out.join("frames.csv")).map_or(0, |r| r.len());
+        let pids: Vec<i32> = std::fs::read_to_string(out.join("processes.json"))
+            .ok()
+            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+            .and_then(|v| {
+                v.as_array().map(|a| {
+                    a.iter()
+                        .filter_map(|p| p["pid"].as_i64())
+                        .map(|p| p as i32)
+                        .collect()
+                })
+            })
+            .unwrap_or_default();
+        if pids.len() == 5 && recorded >= 5 {
+            break pids;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    kill(Pid::from_raw(supervisor.id() as i32), Signal::SIGKILL).unwrap();
+    supervisor.wait().unwrap();
+    while !pids.iter().all(|&p| process_ended(p)) {
+        let alive: Vec<i32> = pids
+            .iter()
+            .copied()
+            .filter(|&p| !process_ended(p))
+            .collect();
+        if t0.elapsed() > Duration::from_secs(180) {
+            for &p in &alive {
+                let _ = kill(Pid::from_raw(p), Signal::SIGKILL);
+            }
+            panic!("stages {alive:?} still running after their supervisor was killed");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // the dead processes' shared memory goes with the next cleanup, as a new supervisor's
+    cleanup_dead_nodes();
+    assert_eq!(
+        ipc_files(),
+        before,
+        "shared-memory files left after cleanup"
+    );
 }
 
 #[test]

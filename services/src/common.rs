@@ -50,9 +50,14 @@ pub fn load_config(path: Option<&Path>) -> Result<Config> {
     }
 }
 
+/// Environment variable through which the supervisor gives its pid to the stages it starts.
+pub const SUPERVISOR_PID_ENV: &str = "SUPERMVO_SUPERVISOR_PID";
+
 /// A stage's connection to the pipeline: its node, the service names and its progress
 /// publisher.
 pub struct StageContext {
+    /// The supervisor that started this process (from [`SUPERVISOR_PID_ENV`]), if any.
+    supervisor: Option<u32>,
     /// The iceoryx2 node of this process.
     pub node: IpcNode,
     /// Service names of the pipeline.
@@ -84,7 +89,11 @@ impl StageContext {
             .publisher_builder()
             .create()
             .map_err(|e| supermvo_messages::MessageError::ipc("progress publisher", e))?;
+        let supervisor = std::env::var(SUPERVISOR_PID_ENV)
+            .ok()
+            .and_then(|v| v.parse().ok());
         Ok(Self {
+            supervisor,
             node,
             services,
             stage,
@@ -187,9 +196,24 @@ impl StageContext {
         self.send(p);
     }
 
-    /// Sleeps one poll period; false once SIGINT or SIGTERM asked the process to stop.
+    /// Sleeps one poll period; false once SIGINT or SIGTERM asked the process to stop, or
+    /// once the supervisor that started it is gone (it was killed or crashed: nobody would
+    /// restart, stop or account for this stage any more, so it exits instead of lingering).
     pub fn wait(&self) -> bool {
-        self.node.wait(POLL).is_ok()
+        if self.node.wait(POLL).is_err() {
+            return false;
+        }
+        match self.supervisor {
+            Some(pid) if std::os::unix::process::parent_id() != pid => {
+                tracing::error!(
+                    "supervisor (pid {pid}) is gone; {} worker {} stops",
+                    self.stage.name(),
+                    self.worker
+                );
+                false
+            }
+            _ => true,
+        }
     }
 }
 

@@ -106,6 +106,15 @@ pub fn run(args: &StageArgs) -> Result<()> {
     ctx.started();
     while ctx.wait() {
         drain_poses(&mut refs)?;
+        // A restart can come up before the tracker's history reaches it and then expect a
+        // frame the tracker has long decided on (and wait for that decision forever): the
+        // tracker is ahead, so continue after its last decision.
+        if let Some(&last) = refs.keys().next_back() {
+            if last >= inbox.next() {
+                tracing::info!("the tracker has decided up to seq {last}; continuing after it");
+                inbox.reset_to(last + 1);
+            }
+        }
         receive_features(&features, &mut inbox)?;
         let _ = publisher.update_connections();
         loop {

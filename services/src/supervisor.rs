@@ -301,6 +301,10 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
             .arg(&opts.out)
             .arg("--worker")
             .arg(w.index.to_string())
+            .env(
+                crate::common::SUPERVISOR_PID_ENV,
+                std::process::id().to_string(),
+            )
             .stdin(Stdio::null())
             .stdout(Stdio::null())
             .stderr(log)
