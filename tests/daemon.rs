@@ -116,6 +116,31 @@ fn ipc_files() -> BTreeSet<String> {
     s
 }
 
+/// Frames the back end has recorded so far in `out/frames.csv` (0 before it exists).
+fn recorded(out: &Path) -> usize {
+    read_records(&out.join("frames.csv")).map_or(0, |r| r.len())
+}
+
+/// `(stage, pid)` of each live stage process in `out/processes.json` (empty before it exists).
+fn stage_pids(out: &Path) -> Vec<(String, i32)> {
+    let Ok(text) = std::fs::read_to_string(out.join("processes.json")) else {
+        return Vec::new();
+    };
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
+    v.as_array()
+        .into_iter()
+        .flatten()
+        .filter_map(|p| Some((p["stage"].as_str()?.to_string(), p["pid"].as_i64()? as i32)))
+        .collect()
+}
+
+/// The pid of `stage`'s process, when listed.
+fn pid_of(out: &Path, stage: &str) -> Option<i32> {
+    stage_pids(out)
+        .into_iter()
+        .find_map(|(s, pid)| (s == stage).then_some(pid))
+}
+
 fn options(name: &str, seq: &Path, out: &Path, max_frames: usize) -> SupervisorOptions {
     let mut config = Config::default();
     config.pipeline.name = format!("{name}-{}", std::process::id());
@@ -196,16 +221,6 @@ fn killed_stages_are_restarted_and_every_frame_is_accounted_for() {
     let out = tmp.path().to_path_buf();
     let handle = std::thread::spawn(move || supervisor::run(&opts));
 
-    let recorded = |out: &Path| read_records(&out.join("frames.csv")).map_or(0, |r| r.len());
-    let pid_of = |out: &Path, stage: &str| -> Option<i32> {
-        let text = std::fs::read_to_string(out.join("processes.json")).ok()?;
-        let v: serde_json::Value = serde_json::from_str(&text).ok()?;
-        v.as_array()?
-            .iter()
-            .find(|p| p["stage"] == stage)
-            .and_then(|p| p["pid"].as_i64())
-            .map(|p| p as i32)
-    };
     let stages = ["ingest", "features", "matching", "tracking", "backend"];
     let t0 = Instant::now();
     for (k, stage) in stages.iter().enumerate() {
@@ -362,7 +377,7 @@ fn sigint_and_sigterm_shut_down_cleanly_with_the_trajectory_written() {
             .spawn()
             .unwrap();
         let t0 = Instant::now();
-        while read_records(&out.join("frames.csv")).map_or(0, |r| r.len()) < 10 {
+        while recorded(&out) < 10 {
             assert!(t0.elapsed() < Duration::from_secs(120));
             std::thread::sleep(Duration::from_millis(20));
         }
@@ -427,32 +442,23 @@ fn stages_stop_when_their_supervisor_is_killed() {
             t0.elapsed() < Duration::from_secs(120),
             "the pipeline never started"
         );
-        let recorded = read_records(&out.join("frames.csv")).map_or(0, |r| r.len());
-        let pids: Vec<i32> = std::fs::read_to_string(out.join("processes.json"))
-            .ok()
-            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-            .and_then(|v| {
-                v.as_array().map(|a| {
-                    a.iter()
-                        .filter_map(|p| p["pid"].as_i64())
-                        .map(|p| p as i32)
-                        .collect()
-                })
-            })
-            .unwrap_or_default();
-        if pids.len() == 5 && recorded >= 5 {
+        let pids: Vec<i32> = stage_pids(&out).into_iter().map(|(_, p)| p).collect();
+        if pids.len() == 5 && recorded(&out) >= 5 {
             break pids;
         }
         std::thread::sleep(Duration::from_millis(50));
     };
     kill(Pid::from_raw(supervisor.id() as i32), Signal::SIGKILL).unwrap();
     supervisor.wait().unwrap();
-    while !pids.iter().all(|&p| process_ended(p)) {
+    loop {
         let alive: Vec<i32> = pids
             .iter()
             .copied()
             .filter(|&p| !process_ended(p))
             .collect();
+        if alive.is_empty() {
+            break;
+        }
         if t0.elapsed() > Duration::from_secs(180) {
             for &p in &alive {
                 let _ = kill(Pid::from_raw(p), Signal::SIGKILL);
@@ -481,22 +487,13 @@ fn a_hung_stage_is_restarted_after_the_deadline() {
     let out = tmp.path().to_path_buf();
     let handle = std::thread::spawn(move || supervisor::run(&opts));
     let t0 = Instant::now();
-    while read_records(&out.join("frames.csv")).map_or(0, |r| r.len()) < 10 {
+    while recorded(&out) < 10 {
         assert!(t0.elapsed() < Duration::from_secs(120));
         std::thread::sleep(Duration::from_millis(20));
     }
-    let text = std::fs::read_to_string(out.join("processes.json")).unwrap();
-    let v: serde_json::Value = serde_json::from_str(&text).unwrap();
-    let pid = v
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|p| p["stage"] == "features")
-        .unwrap()["pid"]
-        .as_i64()
-        .unwrap();
+    let pid = pid_of(&out, "features").unwrap();
     // a stopped process is alive but silent: only the deadline can catch it
-    kill(Pid::from_raw(pid as i32), Signal::SIGSTOP).unwrap();
+    kill(Pid::from_raw(pid), Signal::SIGSTOP).unwrap();
     let m = handle.join().unwrap().unwrap();
     assert_eq!(m.restarts.len(), 1, "{:?}", m.restarts);
     assert!(m.restarts[0].reason.contains("silent"), "{:?}", m.restarts);

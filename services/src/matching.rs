@@ -89,7 +89,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
         .create()
         .map_err(|e| MessageError::ipc("matches publisher", e))?;
 
-    // reference after each tracked seq; a restart continues after the last one
+    // reference after each tracked seq
     let mut refs: BTreeMap<u64, Option<u64>> = BTreeMap::new();
     let drain_poses = |refs: &mut BTreeMap<u64, Option<u64>>| -> Result<()> {
         while let Some(s) = poses.receive().map_err(|e| MessageError::ipc("poses", e))? {
@@ -98,17 +98,15 @@ pub fn run(args: &StageArgs) -> Result<()> {
         }
         Ok(())
     };
-    drain_poses(&mut refs)?;
-    let start = refs.keys().next_back().map_or(0, |s| s + 1);
-    let mut inbox: Inbox<Option<Features>> = Inbox::new(start, 1);
+    let mut inbox: Inbox<Option<Features>> = Inbox::new(0, 1);
     let mut cache: BTreeMap<u64, Features> = BTreeMap::new();
     let gap = Duration::from_millis(cfg.gap_timeout_ms);
     ctx.started();
     while ctx.wait() {
         drain_poses(&mut refs)?;
-        // A restart can come up before the tracker's history reaches it and then expect a
-        // frame the tracker has long decided on (and wait for that decision forever): the
-        // tracker is ahead, so continue after its last decision.
+        // Whenever the tracker has decided on a frame this process still expects (a restart:
+        // the tracker's history may reach it only after it came up), continue after the
+        // tracker's last decision instead of waiting for one that was already made.
         if let Some(&last) = refs.keys().next_back() {
             if last >= inbox.next() {
                 tracing::info!("the tracker has decided up to seq {last}; continuing after it");
