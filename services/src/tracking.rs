@@ -27,7 +27,8 @@ pub fn tracker_config(cfg: &PipelineConfig) -> TrackerConfig {
         local_ba_window: cfg.ba_window,
         keyframe_ratio: cfg.keyframe_ratio,
         ..TrackerConfig::default()
-    };
+    }
+    .with_seed(cfg.seed);
     match cfg.frontend {
         // the learned pairs share the default thresholds
         supermvo_config::Frontend::XfeatLighterglue

@@ -181,6 +181,10 @@ pub struct PipelineConfig {
     /// around each maximum); false (the default) keeps the reference's integer pixel
     /// positions.
     pub subpixel_keypoints: bool,
+    /// Seed of the tracker's random sampling (the essential-matrix and PnP RANSAC): 0 (the
+    /// default) gives the reported runs; any other value a different, equally deterministic
+    /// run, to see how much a result depends on which samples RANSAC happened to draw.
+    pub seed: u64,
 }
 
 impl Default for PipelineConfig {
@@ -207,6 +211,7 @@ impl Default for PipelineConfig {
             width_confidence: 0.95,
             depth_confidence: -1.0,
             subpixel_keypoints: false,
+            seed: 0,
         }
     }
 }
@@ -445,6 +450,8 @@ mod tests {
         assert_eq!(cfg.pipeline.width_confidence, -1.0);
         assert_eq!(cfg.pipeline.depth_confidence, 0.95);
         assert!(cfg.pipeline.subpixel_keypoints);
+        let cfg = Config::from_toml("[pipeline]\nseed = 7\n", Path::new("c.toml")).unwrap();
+        assert_eq!(cfg.pipeline.seed, 7);
     }
 
     #[test]

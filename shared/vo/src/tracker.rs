@@ -103,6 +103,16 @@ impl Default for TrackerConfig {
     }
 }
 
+impl TrackerConfig {
+    /// The same configuration with RANSAC and PnP sampling seeded from `seed`: 0 keeps the
+    /// default seeds, any other value offsets both (the run stays deterministic).
+    pub fn with_seed(mut self, seed: u64) -> Self {
+        self.ransac.seed = self.ransac.seed.wrapping_add(seed.wrapping_mul(104_729));
+        self.pnp.seed = self.pnp.seed.wrapping_add(seed.wrapping_mul(7_919));
+        self
+    }
+}
+
 /// One local bundle adjustment: its size, cost (sum of squared normalised reprojection
 /// errors under the robust loss) and wall time including building the problem.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]

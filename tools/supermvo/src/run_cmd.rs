@@ -61,6 +61,9 @@ pub struct RunArgs {
     /// off [pipeline.keyframe_ratio].
     #[arg(long)]
     keyframe_ratio: Option<f64>,
+    /// Seed of the tracker's RANSAC sampling; 0 gives the reported runs [pipeline.seed].
+    #[arg(long)]
+    seed: Option<u64>,
     /// Process at most this many frames [pipeline.max_frames].
     #[arg(long)]
     max_frames: Option<usize>,
@@ -104,6 +107,9 @@ impl RunArgs {
         }
         if let Some(v) = self.max_frames {
             p.max_frames = v;
+        }
+        if let Some(v) = self.seed {
+            p.seed = v;
         }
         if let Some(v) = self.workers {
             p.features_workers = v;
