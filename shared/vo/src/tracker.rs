@@ -72,6 +72,12 @@ pub struct TrackerConfig {
     pub map_search_max_distance: f32,
     /// The best candidate must be below this times the second best.
     pub map_search_ratio: f32,
+    /// A new keyframe's match to a landmark of the reference keyframe that misses the PnP
+    /// threshold, but lies within this many pixels of the landmark's projection, is tried as
+    /// an observation: kept when the landmark, re-triangulated with it, reprojects within
+    /// 2 px in every view. The wider baseline then corrects a depth that a short one got
+    /// wrong, instead of the landmark losing its track; 0 disables.
+    pub reobserve_max_px: f64,
     /// Essential-matrix RANSAC.
     pub ransac: RansacConfig,
     /// PnP RANSAC.
@@ -97,6 +103,7 @@ impl Default for TrackerConfig {
             ba_anchors: true,
             ba_fixed_with_anchors: 1,
             map_search_ratio: 0.9,
+            reobserve_max_px: 6.0,
             ransac: RansacConfig::default(),
             pnp: PnpConfig::default(),
         }
@@ -318,6 +325,32 @@ impl Tracker {
         if let Some(tri) = triangulate_checked(&views, thr) {
             lm.p = tri.point;
         }
+    }
+
+    /// Adds keyframe `kf_id`'s observation of landmark `id` that tracking did not accept
+    /// (see `TrackerConfig::reobserve_max_px`) when the landmark, re-triangulated from all its
+    /// observations and this one, reprojects within 2 px in every view; then the landmark
+    /// takes the new position. Otherwise nothing changes and `false` is returned.
+    fn reobserve_landmark(&mut self, id: usize, kf_id: usize, b: Vec3, desc: &[f32]) -> bool {
+        let thr = 2.0 / self.focal();
+        let poses = &self.keyframe_poses;
+        let (Some(lm), Some(&(kr, kt))) = (self.landmarks.get_mut(&id), poses.get(kf_id)) else {
+            return false;
+        };
+        let views: Vec<(Mat3, Vec3, Vec3)> = lm
+            .obs
+            .iter()
+            .map(|(k, bo)| (poses[*k].0, poses[*k].1, *bo))
+            .chain(std::iter::once((kr, kt, b)))
+            .collect();
+        let Some(tri) = triangulate_checked(&views, thr) else {
+            return false;
+        };
+        lm.p = tri.point;
+        lm.obs.push((kf_id, b));
+        lm.desc.clear();
+        lm.desc.extend_from_slice(desc);
+        true
     }
 
     /// The pose of the next frame under constant velocity (`None` until two frames were
@@ -1020,6 +1053,23 @@ impl Tracker {
             let obs_b = bearing(&self.calib, &cur.keypoints[b]);
             self.observe_landmark(id, cur_id, obs_b, cur.descriptor(b));
         }
+        if self.cfg.reobserve_max_px > 0.0 {
+            let gate = self.cfg.reobserve_max_px / self.focal();
+            for (k, &(_, b, id)) in with_lm.iter().enumerate() {
+                if inlier[k]
+                    || landmark[b].is_some()
+                    || used.contains(&id)
+                    || reproj_sq(&r, &t, &pw[k], &bw[k]).sqrt() >= gate
+                {
+                    continue;
+                }
+                let obs_b = bearing(&self.calib, &cur.keypoints[b]);
+                if self.reobserve_landmark(id, cur_id, obs_b, cur.descriptor(b)) {
+                    used.insert(id);
+                    landmark[b] = Some(id);
+                }
+            }
+        }
         let fresh: Vec<(usize, usize)> = m
             .pairs
             .iter()
@@ -1192,4 +1242,92 @@ pub fn output_pose(o: &FrameOutput) -> Option<Pose> {
             Vec3::new(p[3], p[7], p[11]),
         )
     })
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
+    use super::*;
+
+    const F: f64 = 700.0;
+
+    /// `T_cam_world` of an unrotated camera centred at `c`.
+    fn at(c: Vec3) -> (Mat3, Vec3) {
+        (Mat3::identity(), -c)
+    }
+
+    /// Bearing of world point `p` seen from the camera centred at `c`, moved by `(du, dv)` px.
+    fn seen(p: &Vec3, c: &Vec3, (du, dv): (f64, f64)) -> Vec3 {
+        let q = p - c;
+        Vec3::new(q.x / q.z + du / F, q.y / q.z + dv / F, 1.0)
+    }
+
+    /// A tracker with keyframes 0 and 1 (0.5 m apart sideways, 1.4 degrees of parallax at
+    /// 20 m) holding one landmark triangulated from them with 0.7 px of noise in keyframe 1,
+    /// and keyframe 2 another 2.5 m on; returns it, the landmark id and the true point.
+    fn short_baseline_landmark() -> (Tracker, usize, Vec3) {
+        let calib = Calibration {
+            fx: F,
+            fy: F,
+            cx: 0.0,
+            cy: 0.0,
+        };
+        let mut tr = Tracker::new(calib, TrackerConfig::default());
+        let centres = [
+            Vec3::zeros(),
+            Vec3::new(0.5, 0.0, 0.0),
+            Vec3::new(3.0, 0.0, 0.0),
+        ];
+        for c in centres {
+            let (r, t) = at(c);
+            tr.new_keyframe_id(r, t);
+        }
+        let truth = Vec3::new(1.0, 0.5, 20.0);
+        let obs = vec![
+            (0, seen(&truth, &centres[0], (0.0, 0.0))),
+            (1, seen(&truth, &centres[1], (0.7, 0.0))),
+        ];
+        let views: Vec<_> = obs
+            .iter()
+            .map(|(k, b)| (tr.keyframe_poses[*k].0, tr.keyframe_poses[*k].1, *b))
+            .collect();
+        let p = triangulate_checked(&views, 2.0 / F).unwrap().point;
+        let id = tr.add_landmark(p, obs, &[0.0; 4]);
+        (tr, id, truth)
+    }
+
+    fn reprojection_px(tr: &Tracker, id: usize, kf: usize, b: &Vec3) -> f64 {
+        let (r, t) = tr.keyframe_poses[kf];
+        supermvo_geometry::pnp::reprojection_sq(&r, &t, &tr.landmarks[&id].p, b).sqrt() * F
+    }
+
+    #[test]
+    fn a_wider_baseline_corrects_a_landmark_that_tracking_rejected() {
+        let (mut tr, id, truth) = short_baseline_landmark();
+        let b = seen(&truth, &Vec3::new(3.0, 0.0, 0.0), (0.0, 0.0));
+        let before = (tr.landmarks[&id].p - truth).norm();
+        // the short baseline's depth error puts the landmark beyond the 2 px PnP threshold
+        // from keyframe 2, within the 6 px re-observation gate
+        let miss = reprojection_px(&tr, id, 2, &b);
+        assert!(miss > 2.0 && miss < 6.0, "reprojection {miss} px");
+        assert!(tr.reobserve_landmark(id, 2, b, &[1.0; 4]));
+        let after = (tr.landmarks[&id].p - truth).norm();
+        assert!(after < 0.25 * before, "error {before} m -> {after} m");
+        assert_eq!(tr.landmarks[&id].obs.len(), 3);
+        assert_eq!(tr.landmarks[&id].desc, vec![1.0; 4]);
+    }
+
+    #[test]
+    fn a_match_inconsistent_with_the_other_views_is_not_added() {
+        let (mut tr, id, truth) = short_baseline_landmark();
+        let p = tr.landmarks[&id].p;
+        // 5 px off across the epipolar line: no point fits all three views within 2 px
+        let b = seen(&truth, &Vec3::new(3.0, 0.0, 0.0), (0.0, 5.0));
+        assert!(!tr.reobserve_landmark(id, 2, b, &[1.0; 4]));
+        assert_eq!(tr.landmarks[&id].p, p);
+        assert_eq!(tr.landmarks[&id].obs.len(), 2);
+        // an unknown keyframe or landmark changes nothing either
+        assert!(!tr.reobserve_landmark(id, 7, b, &[1.0; 4]));
+        assert!(!tr.reobserve_landmark(id + 1, 2, b, &[1.0; 4]));
+    }
 }
