@@ -22,7 +22,7 @@
 use crate::stage::Stage;
 use supermvo_dataset::{Calibration, GrayImage};
 use supermvo_geometry::essential::{
-    find_essential, recover_pose, triangulate_checked, RansacConfig,
+    find_essential, recover_pose, triangulate_checked, RansacConfig, Triangulated,
 };
 use supermvo_geometry::pnp::{solve_pnp_ransac, PnpConfig};
 use supermvo_geometry::{Mat3, Pose, Vec3};
@@ -309,20 +309,17 @@ impl Tracker {
     /// Adds keyframe `kf_id`'s observation `(bearing, descriptor)` to landmark `id` and
     /// re-triangulates it from all its observations when each still reprojects within 2 px.
     fn observe_landmark(&mut self, id: usize, kf_id: usize, b: Vec3, desc: &[f32]) {
-        let thr = 2.0 / self.focal();
-        let poses = &self.keyframe_poses;
         let Some(lm) = self.landmarks.get_mut(&id) else {
             return;
         };
         lm.obs.push((kf_id, b));
         lm.desc.clear();
         lm.desc.extend_from_slice(desc);
-        let views: Vec<(Mat3, Vec3, Vec3)> = lm
-            .obs
-            .iter()
-            .map(|(k, bo)| (poses[*k].0, poses[*k].1, *bo))
-            .collect();
-        if let Some(tri) = triangulate_checked(&views, thr) {
+        let fit = self
+            .landmarks
+            .get(&id)
+            .and_then(|lm| self.triangulate_observations(&lm.obs));
+        if let (Some(tri), Some(lm)) = (fit, self.landmarks.get_mut(&id)) {
             lm.p = tri.point;
         }
     }
@@ -332,25 +329,32 @@ impl Tracker {
     /// observations and this one, reprojects within 2 px in every view; then the landmark
     /// takes the new position. Otherwise nothing changes and `false` is returned.
     fn reobserve_landmark(&mut self, id: usize, kf_id: usize, b: Vec3, desc: &[f32]) -> bool {
-        let thr = 2.0 / self.focal();
-        let poses = &self.keyframe_poses;
-        let (Some(lm), Some(&(kr, kt))) = (self.landmarks.get_mut(&id), poses.get(kf_id)) else {
+        let Some(mut obs) = self.landmarks.get(&id).map(|lm| lm.obs.clone()) else {
             return false;
         };
-        let views: Vec<(Mat3, Vec3, Vec3)> = lm
-            .obs
-            .iter()
-            .map(|(k, bo)| (poses[*k].0, poses[*k].1, *bo))
-            .chain(std::iter::once((kr, kt, b)))
-            .collect();
-        let Some(tri) = triangulate_checked(&views, thr) else {
+        obs.push((kf_id, b));
+        let (Some(tri), Some(lm)) = (
+            self.triangulate_observations(&obs),
+            self.landmarks.get_mut(&id),
+        ) else {
             return false;
         };
         lm.p = tri.point;
-        lm.obs.push((kf_id, b));
+        lm.obs = obs;
         lm.desc.clear();
         lm.desc.extend_from_slice(desc);
         true
+    }
+
+    /// The point that keyframe observations `(keyframe id, bearing)` triangulate to when it
+    /// lies in front of every view and reprojects within 2 px in each (`None` otherwise, or
+    /// when a keyframe is unknown).
+    fn triangulate_observations(&self, obs: &[(usize, Vec3)]) -> Option<Triangulated> {
+        let views = obs
+            .iter()
+            .map(|(k, b)| self.keyframe_poses.get(*k).map(|&(r, t)| (r, t, *b)))
+            .collect::<Option<Vec<(Mat3, Vec3, Vec3)>>>()?;
+        triangulate_checked(&views, 2.0 / self.focal())
     }
 
     /// The pose of the next frame under constant velocity (`None` until two frames were
@@ -744,11 +748,7 @@ impl Tracker {
     /// view, reprojects within 2 px in each and has the configured parallax between the
     /// first and the last view.
     fn triangulate_track(&self, obs: &[(usize, Vec3)], min_parallax_deg: f64) -> Option<Vec3> {
-        let views: Vec<(Mat3, Vec3, Vec3)> = obs
-            .iter()
-            .map(|(k, b)| (self.keyframe_poses[*k].0, self.keyframe_poses[*k].1, *b))
-            .collect();
-        triangulate_checked(&views, 2.0 / self.focal())
+        self.triangulate_observations(obs)
             .filter(|tri| tri.parallax_deg > min_parallax_deg)
             .map(|tri| tri.point)
     }
