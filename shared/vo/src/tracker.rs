@@ -78,6 +78,11 @@ pub struct TrackerConfig {
     /// 2 px in every view. The wider baseline then corrects a depth that a short one got
     /// wrong, instead of the landmark losing its track; 0 disables.
     pub reobserve_max_px: f64,
+    /// The frame's pose, last, refined on all its landmark matches under a robust loss
+    /// (Huber at half the PnP threshold, nothing beyond three times it) instead of only on
+    /// those a hard threshold selected: the pose then depends on the data, not on which
+    /// points RANSAC's sample happened to let through, and the run far less on the seed.
+    pub robust_refinement: bool,
     /// Essential-matrix RANSAC.
     pub ransac: RansacConfig,
     /// PnP RANSAC.
@@ -104,6 +109,7 @@ impl Default for TrackerConfig {
             ba_fixed_with_anchors: 1,
             map_search_ratio: 0.9,
             reobserve_max_px: 6.0,
+            robust_refinement: true,
             ransac: RansacConfig::default(),
             pnp: PnpConfig::default(),
         }
@@ -978,6 +984,24 @@ impl Tracker {
             inlier = (0..all_p.len())
                 .map(|i| reproj_sq(&r, &t, &all_p[i], &all_b[i]) < thr_sq)
                 .collect();
+        }
+        if self.cfg.robust_refinement {
+            // the final pose: a smooth function of every match, not of the selection above
+            let thr = self.cfg.pnp.threshold_px / self.focal();
+            let (r2, t2) = supermvo_geometry::pnp::refine_pose_robust(
+                &r,
+                &t,
+                &all_p,
+                &all_b,
+                (0.5 * thr, 3.0 * thr),
+                10,
+            );
+            let inlier2: Vec<bool> = (0..all_p.len())
+                .map(|i| reproj_sq(&r2, &t2, &all_p[i], &all_b[i]) < thr_sq)
+                .collect();
+            if inlier2.iter().filter(|&&x| x).count() >= self.cfg.min_tracked {
+                (r, t, inlier) = (r2, t2, inlier2);
+            }
         }
         let tracked = inlier.iter().filter(|&&x| x).count();
         if tracked < self.cfg.min_tracked {

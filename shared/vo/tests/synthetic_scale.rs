@@ -42,8 +42,27 @@ fn calib() -> Calibration {
     }
 }
 
+/// How the camera is driven along the path.
+#[derive(Debug, Clone, Copy, Default)]
+struct Drive {
+    /// The camera is mounted this many metres ahead of the point that follows the path (a
+    /// car's rear axle): in a turn it then moves sideways as well as forwards, as a car's
+    /// camera does (KITTI 03's ground truth: the direction of motion leads the camera's
+    /// heading by 7-12 degrees through its slow turn).
+    lever: f64,
+    /// Slow down to 0.3 m per frame over the 10 frames before the turn, take the turn at
+    /// that speed (3 degrees per frame, as KITTI's intersection turns) and speed up to 1 m
+    /// per frame over the 30 frames after it; 1 m per frame throughout otherwise.
+    slow_turn: bool,
+}
+
 /// Camera centre and heading (yaw about the camera's y axis, radians) at frame `k`.
-fn path(k: usize) -> (Vec3, f64) {
+fn path_with(k: usize, drive: Drive) -> (Vec3, f64) {
+    let (c, yaw) = path_axle(k, drive);
+    (c + drive.lever * Vec3::new(yaw.sin(), 0.0, yaw.cos()), yaw)
+}
+
+fn path_axle(k: usize, drive: Drive) -> (Vec3, f64) {
     let mut c = Vec3::zeros();
     let mut yaw = 0.0f64;
     let rate = std::f64::consts::FRAC_PI_2 / TURN as f64;
@@ -51,9 +70,30 @@ fn path(k: usize) -> (Vec3, f64) {
         if (STRAIGHT..STRAIGHT + TURN).contains(&i) {
             yaw += rate;
         }
-        c += Vec3::new(yaw.sin(), 0.0, yaw.cos());
+        c += speed(i, drive) * Vec3::new(yaw.sin(), 0.0, yaw.cos());
     }
     (c, yaw)
+}
+
+/// Metres driven from frame `i` to the next.
+fn speed(i: usize, drive: Drive) -> f64 {
+    if !drive.slow_turn {
+        return 1.0;
+    }
+    let slow = 0.3;
+    let (a, b) = (STRAIGHT as f64, (STRAIGHT + TURN) as f64);
+    let i = i as f64;
+    if i < a - 10.0 {
+        1.0
+    } else if i < a {
+        1.0 - (1.0 - slow) * (i - (a - 10.0)) / 10.0
+    } else if i < b {
+        slow
+    } else if i < b + 30.0 {
+        slow + (1.0 - slow) * (i - b) / 30.0
+    } else {
+        1.0
+    }
 }
 
 fn rot_y(a: f64) -> Mat3 {
@@ -67,10 +107,10 @@ struct Scene {
 
 /// 40 points per metre of path, 3-18 m to either side, from the ground (y = 1.65 m, y
 /// points down) to 3.35 m above the camera.
-fn scene(rng: &mut Rng) -> Scene {
+fn scene(rng: &mut Rng, drive: Drive) -> Scene {
     let mut points = Vec::new();
     for k in 0..FRAMES + 80 {
-        let (c, yaw) = path(k);
+        let (c, yaw) = path_axle(k, drive);
         let r = rot_y(yaw);
         for _ in 0..40 {
             let mut x = rng.u() * 30.0 - 15.0;
@@ -94,9 +134,15 @@ fn scene(rng: &mut Rng) -> Scene {
 
 /// Features of frame `k` (points 1-80 m ahead that land in the image, at most 2000) and
 /// the point id of each keypoint.
-fn observe(s: &Scene, k: usize, noise_px: f64, rng: &mut Rng) -> (Features, Vec<usize>) {
+fn observe(
+    s: &Scene,
+    k: usize,
+    noise_px: f64,
+    drive: Drive,
+    rng: &mut Rng,
+) -> (Features, Vec<usize>) {
     let c = calib();
-    let (centre, yaw) = path(k);
+    let (centre, yaw) = path_with(k, drive);
     let r_cw = rot_y(yaw).transpose();
     let mut f = Features {
         keypoints: Vec::new(),
@@ -132,14 +178,25 @@ fn observe(s: &Scene, k: usize, noise_px: f64, rng: &mut Rng) -> (Features, Vec<
 /// Runs the tracker over the whole path; per frame the estimated camera centre (when
 /// posed) and the true one.
 fn run(seed: u64, noise_px: f64, outliers: f64, cfg: TrackerConfig) -> Vec<(Option<Vec3>, Vec3)> {
+    run_with(seed, noise_px, outliers, cfg, Drive::default())
+}
+
+/// [`run`] for a [`Drive`].
+fn run_with(
+    seed: u64,
+    noise_px: f64,
+    outliers: f64,
+    cfg: TrackerConfig,
+    drive: Drive,
+) -> Vec<(Option<Vec3>, Vec3)> {
     let mut rng = Rng(0x9e37_79b9_7f4a_7c15 ^ seed.wrapping_mul(0x0123_4567));
     let mut match_rng = Rng(12345 + seed);
-    let s = scene(&mut rng);
+    let s = scene(&mut rng, drive);
     let mut tracker = Tracker::new(calib(), cfg);
     let mut ids_of: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
     let mut out = Vec::new();
     for k in 0..FRAMES {
-        let (f, ids) = observe(&s, k, noise_px, &mut rng);
+        let (f, ids) = observe(&s, k, noise_px, drive, &mut rng);
         let matches = tracker.reference().map(|(reference, _)| {
             let at: std::collections::HashMap<usize, usize> =
                 ids.iter().enumerate().map(|(j, &i)| (i, j)).collect();
@@ -167,7 +224,7 @@ fn run(seed: u64, noise_px: f64, outliers: f64, cfg: TrackerConfig) -> Vec<(Opti
         };
         let o = tracker.step(meta, f, matches.as_ref());
         let est = o.pose.map(|p| Vec3::new(p[3], p[7], p[11]));
-        out.push((est, path(k).0));
+        out.push((est, path_with(k, drive).0));
     }
     out
 }
@@ -280,4 +337,70 @@ fn scale_walk_with_kitti_like_noise() {
             .collect();
         println!("window {window}: last / first step {ratios:.3?}");
     }
+}
+
+/// Not a check, a measurement (README, "Where the spread comes from"): does a car's geometry
+/// in a slow turn make the scale grow as it does on KITTI? The KITTI-like noise runs, at
+/// constant speed and with the slow turn, with the camera 0, 2 and 4 m ahead of the rear
+/// axle. `cargo test --release -p supermvo-vo --test synthetic_scale -- --ignored
+/// --nocapture axle` prints the last step's scale over the first for six scenes each.
+#[test]
+#[ignore]
+fn scale_walk_with_the_camera_ahead_of_the_axle() {
+    for slow_turn in [false, true] {
+        for lever in [0.0, 2.0, 4.0] {
+            let drive = Drive { lever, slow_turn };
+            let ratios: Vec<f64> = (0..6)
+                .map(|seed| {
+                    let cfg = TrackerConfig::default();
+                    let steps = scale_steps(&run_with(seed, 0.75, 0.1, cfg, drive));
+                    steps[steps.len() - 1] / steps[0]
+                })
+                .collect();
+            println!("{drive:?}: last / first step {ratios:.3?}");
+        }
+    }
+}
+
+/// `TrackerConfig::robust_refinement`: a run then depends less on its RANSAC seed. On three
+/// scenes with KITTI-like noise, the mean distance between the trajectories of seeds 0 and
+/// 1 (both scaled to the true path length) is smaller with the robust final refinement than
+/// with the pose refined on the inliers a hard threshold selected: by at least a fifth on
+/// average over the three scenes (measured: 0.11 / 0.31 / 0.09 m against 0.28 / 0.25 / 0.28
+/// m; one scene goes the other way, so this is an average, not a per-scene claim).
+#[test]
+fn robust_refinement_makes_the_run_depend_less_on_the_seed() {
+    let gap = |robust: bool, scene: u64| {
+        let cfg = |seed| TrackerConfig {
+            robust_refinement: robust,
+            ..TrackerConfig::default().with_seed(seed)
+        };
+        let (a, b) = (run(scene, 0.75, 0.1, cfg(0)), run(scene, 0.75, 0.1, cfg(1)));
+        let scaled = |t: &[(Option<Vec3>, Vec3)]| {
+            let first = t.iter().position(|x| x.0.is_some()).unwrap_or(0) + 10;
+            let est = (t[t.len() - 1].0.unwrap() - t[first].0.unwrap()).norm();
+            let truth = (t[t.len() - 1].1 - t[first].1).norm();
+            truth / est
+        };
+        let (sa, sb) = (scaled(&a), scaled(&b));
+        let d: Vec<f64> = a
+            .iter()
+            .zip(&b)
+            .filter_map(|(x, y)| Some((x.0? * sa - y.0? * sb).norm()))
+            .collect();
+        d.iter().sum::<f64>() / d.len() as f64
+    };
+    let (mut hard, mut robust) = (0.0, 0.0);
+    for scene in 0..3 {
+        let (h, r) = (gap(false, scene), gap(true, scene));
+        println!(
+            "scene {scene}: seeds 0 and 1 {h:.4} m apart with hard selection, {r:.4} m robust"
+        );
+        hard += h / 3.0;
+        robust += r / 3.0;
+    }
+    assert!(
+        robust < 0.8 * hard,
+        "robust {robust:.4} m against {hard:.4} m"
+    );
 }
