@@ -794,6 +794,34 @@ impl Tracker {
         out
     }
 
+    /// The reference `kf` can no longer initialise: this frame becomes the reference, at the
+    /// reference's pose (as after a loss, the trajectory continues from the last known pose).
+    fn restart_initialisation(
+        &mut self,
+        input: &FrameMeta,
+        kf: Keyframe,
+        cur: Features,
+        matches: usize,
+    ) -> FrameOutput {
+        tracing::debug!(
+            frame = input.index,
+            reference = kf.frame,
+            matches,
+            "initialisation restarts from this frame"
+        );
+        let out = self.output(
+            input,
+            TrackingState::Initializing,
+            None,
+            cur.len(),
+            (matches, 0),
+            false,
+        );
+        self.segment_start = self.keyframe_poses.len();
+        self.set_reference(input.index, kf.r, kf.t, cur);
+        out
+    }
+
     fn initialise(&mut self, input: &FrameMeta, cur: Features, m: Option<&Matches>) -> FrameOutput {
         let Some(kf) = self.keyframe.take() else {
             // first frame (or first after a loss): becomes the reference at the last pose
@@ -829,7 +857,12 @@ impl Tracker {
             median_displacement_px = parallax,
             "initialising"
         );
-        if parallax < self.cfg.min_parallax_px || m.pairs.len() < self.cfg.min_init_landmarks {
+        if m.pairs.len() < self.cfg.min_init_landmarks {
+            // too few matches left for this reference ever to initialise (the view has moved
+            // on, e.g. after a failed attempt in a turn): start again from this frame
+            return self.restart_initialisation(input, kf, cur, m.pairs.len());
+        }
+        if parallax < self.cfg.min_parallax_px {
             return self.not_yet(input, kf, cur.len(), (m.pairs.len(), 0));
         }
         let x1: Vec<Vec3> = m
@@ -1353,5 +1386,55 @@ mod tests {
         // an unknown keyframe or landmark changes nothing either
         assert!(!tr.reobserve_landmark(id, 7, b, &[1.0; 4]));
         assert!(!tr.reobserve_landmark(id + 1, 2, b, &[1.0; 4]));
+    }
+
+    fn features(n: usize, shift: f32) -> Features {
+        Features {
+            keypoints: (0..n)
+                .map(|i| [(i % 40) as f32 * 30.0 + shift, (i / 40) as f32 * 30.0])
+                .collect(),
+            scores: vec![1.0; n],
+            descriptors: vec![0.0; n * 4],
+            dim: 4,
+            image_size: (1241, 376),
+        }
+    }
+
+    /// A reference that too few matches reach (fewer than `min_init_landmarks`) can never
+    /// initialise: the frame becomes the new reference instead of the tracker waiting on the
+    /// old one for the rest of the run (as ORB on KITTI 03 did after a failed attempt in
+    /// the turn).
+    #[test]
+    fn initialisation_restarts_when_the_reference_loses_its_matches() {
+        let calib = Calibration {
+            fx: F,
+            fy: F,
+            cx: 620.0,
+            cy: 188.0,
+        };
+        let mut tr = Tracker::new(calib, TrackerConfig::default());
+        let meta = |index| FrameMeta {
+            index,
+            stamp: index as f64 * 0.1,
+        };
+        tr.step(meta(0), features(400, 0.0), None);
+        assert_eq!(tr.reference().map(|r| r.0), Some(0));
+        // many matches, too little parallax: keep waiting on frame 0
+        let many = Matches {
+            pairs: (0..300).map(|i| (i, i)).collect(),
+            scores: vec![1.0; 300],
+        };
+        let out = tr.step(meta(1), features(400, 2.0), Some(&many));
+        assert_eq!(out.state, TrackingState::Initializing);
+        assert_eq!(tr.reference().map(|r| r.0), Some(0));
+        // fewer matches than an initialisation needs: frame 2 becomes the reference
+        let few = Matches {
+            pairs: (0..50).map(|i| (i, i)).collect(),
+            scores: vec![1.0; 50],
+        };
+        let out = tr.step(meta(2), features(400, 40.0), Some(&few));
+        assert_eq!(out.state, TrackingState::Initializing);
+        assert!(out.pose.is_none());
+        assert_eq!(tr.reference().map(|r| r.0), Some(2));
     }
 }
