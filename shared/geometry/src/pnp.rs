@@ -144,6 +144,30 @@ pub fn reprojection_sq(r: &Mat3, t: &Vec3, p: &Vec3, b: &Vec3) -> f64 {
     (q.x / q.z - u).powi(2) + (q.y / q.z - v).powi(2)
 }
 
+/// Reprojection residual (normalised units) of world point `p` under `T_cam_world = (r, t)`
+/// against bearing `b`, and its Jacobian for the left perturbation `T <- Exp(delta) T`,
+/// `delta = (omega, v)`; `None` for a point not in front.
+fn residual_jacobian(
+    r: &Mat3,
+    t: &Vec3,
+    p: &Vec3,
+    b: &Vec3,
+) -> Option<(nalgebra::Vector2<f64>, SMatrix<f64, 2, 6>)> {
+    let q = r * p + t;
+    if q.z <= 1e-9 {
+        return None;
+    }
+    let (iz, iz2) = (1.0 / q.z, 1.0 / (q.z * q.z));
+    let res = nalgebra::Vector2::new(q.x * iz - b.x / b.z, q.y * iz - b.y / b.z);
+    let dpi = SMatrix::<f64, 2, 3>::new(iz, 0.0, -q.x * iz2, 0.0, iz, -q.y * iz2);
+    // d q / d (omega, v): [-[q]x | I]
+    let mut dq = SMatrix::<f64, 3, 6>::zeros();
+    dq.fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&(-crate::skew(&q)));
+    dq.fixed_view_mut::<3, 3>(0, 3).copy_from(&Mat3::identity());
+    Some((res, dpi * dq))
+}
+
 /// Gauss-Newton (with a few Levenberg steps) on the reprojection error of the given
 /// correspondences, perturbing `T_cam_world` on the left.
 pub fn refine_pose(
@@ -167,19 +191,9 @@ pub fn refine_pose(
         let mut h = SMatrix::<f64, 6, 6>::zeros();
         let mut g = SVector::<f64, 6>::zeros();
         for (p, b) in points_world.iter().zip(bearings) {
-            let q = r * p + t;
-            if q.z <= 1e-9 {
+            let Some((res, j)) = residual_jacobian(&r, &t, p, b) else {
                 continue;
-            }
-            let (iz, iz2) = (1.0 / q.z, 1.0 / (q.z * q.z));
-            let res = nalgebra::Vector2::new(q.x * iz - b.x / b.z, q.y * iz - b.y / b.z);
-            let dpi = SMatrix::<f64, 2, 3>::new(iz, 0.0, -q.x * iz2, 0.0, iz, -q.y * iz2);
-            // d q / d (omega, v) for T <- Exp(delta) T: [-[q]x | I]
-            let mut dq = SMatrix::<f64, 3, 6>::zeros();
-            dq.fixed_view_mut::<3, 3>(0, 0)
-                .copy_from(&(-crate::skew(&q)));
-            dq.fixed_view_mut::<3, 3>(0, 3).copy_from(&Mat3::identity());
-            let j = dpi * dq;
+            };
             h += j.transpose() * j;
             g += j.transpose() * res;
         }
@@ -229,23 +243,14 @@ pub fn refine_pose_robust(
         let mut g = SVector::<f64, 6>::zeros();
         let mut used = 0;
         for (p, b) in points_world.iter().zip(bearings) {
-            let q = r * p + t;
-            if q.z <= 1e-9 {
+            let Some((res, j)) = residual_jacobian(&r, &t, p, b) else {
                 continue;
-            }
-            let (iz, iz2) = (1.0 / q.z, 1.0 / (q.z * q.z));
-            let res = nalgebra::Vector2::new(q.x * iz - b.x / b.z, q.y * iz - b.y / b.z);
+            };
             let e = res.norm();
             if e >= cutoff {
                 continue;
             }
             let w = if e <= k { 1.0 } else { k / e };
-            let dpi = SMatrix::<f64, 2, 3>::new(iz, 0.0, -q.x * iz2, 0.0, iz, -q.y * iz2);
-            let mut dq = SMatrix::<f64, 3, 6>::zeros();
-            dq.fixed_view_mut::<3, 3>(0, 0)
-                .copy_from(&(-crate::skew(&q)));
-            dq.fixed_view_mut::<3, 3>(0, 3).copy_from(&Mat3::identity());
-            let j = dpi * dq;
             h += w * j.transpose() * j;
             g += w * j.transpose() * res;
             used += 1;
@@ -364,6 +369,34 @@ mod tests {
         (pts, r, t)
     }
 
+    /// Bearings of `pts` under `T_cam_world = (r, t)` with uniform noise of `px` pixels
+    /// peak-to-peak at focal `f` (seeded), the first `outliers` replaced by wrong ones.
+    fn noisy_bearings(
+        pts: &[Vec3],
+        (r, t): (&Mat3, &Vec3),
+        (f, px, seed): (f64, f64, u64),
+        outliers: usize,
+    ) -> Vec<Vec3> {
+        let mut s = seed;
+        let mut noise = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            ((s >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * px / f
+        };
+        let mut bearings: Vec<Vec3> = pts
+            .iter()
+            .map(|p| {
+                let q = r * p + t;
+                q / q.z + Vec3::new(noise(), noise(), 0.0)
+            })
+            .collect();
+        for b in bearings.iter_mut().take(outliers) {
+            *b = Vec3::new(b.y + 0.05, b.x - 0.1, 1.0);
+        }
+        bearings
+    }
+
     #[test]
     fn epnp_is_exact_without_noise() {
         let (pts, r, t) = scene(8, 3);
@@ -383,26 +416,7 @@ mod tests {
     fn ransac_with_noise_and_outliers() {
         let (pts, r, t) = scene(200, 11);
         let f = 700.0;
-        let mut s = 99u64;
-        let mut noise = || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            ((s >> 11) as f64 / (1u64 << 53) as f64 - 0.5) / f
-        };
-        let mut bearings: Vec<Vec3> = pts
-            .iter()
-            .map(|p| {
-                let q = r * p + t;
-                q / q.z
-            })
-            .collect();
-        for b in &mut bearings {
-            *b += Vec3::new(noise(), noise(), 0.0);
-        }
-        for b in bearings.iter_mut().take(60) {
-            *b = Vec3::new(b.y + 0.05, b.x - 0.1, 1.0);
-        }
+        let bearings = noisy_bearings(&pts, (&r, &t), (f, 1.0, 99), 60);
         let est = solve_pnp_ransac(&pts, &bearings, f, &PnpConfig::default()).unwrap();
         assert!(est.inlier_count() >= 135, "{}", est.inlier_count());
         assert!(crate::rotation_angle(&(est.r.transpose() * r)).to_degrees() < 0.05);
@@ -416,23 +430,7 @@ mod tests {
     fn robust_refinement_forgets_where_it_started() {
         let (pts, r, t) = scene(200, 11);
         let f = 700.0;
-        let mut s = 7u64;
-        let mut noise = || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            ((s >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 2.0 / f
-        };
-        let mut bearings: Vec<Vec3> = pts
-            .iter()
-            .map(|p| {
-                let q = r * p + t;
-                q / q.z + Vec3::new(noise(), noise(), 0.0)
-            })
-            .collect();
-        for b in bearings.iter_mut().take(50) {
-            *b = Vec3::new(b.y + 0.05, b.x - 0.1, 1.0);
-        }
+        let bearings = noisy_bearings(&pts, (&r, &t), (f, 2.0, 7), 50);
         let robust = |r0: &Mat3, t0: &Vec3| {
             refine_pose_robust(r0, t0, &pts, &bearings, (1.0 / f, 6.0 / f), 30)
         };

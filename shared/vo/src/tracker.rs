@@ -1313,6 +1313,16 @@ mod tests {
         (Mat3::identity(), -c)
     }
 
+    /// A camera of focal length `F` with principal point `(cx, cy)`.
+    fn calibration(cx: f64, cy: f64) -> Calibration {
+        Calibration {
+            fx: F,
+            fy: F,
+            cx,
+            cy,
+        }
+    }
+
     /// Bearing of world point `p` seen from the camera centred at `c`, moved by `(du, dv)` px.
     fn seen(p: &Vec3, c: &Vec3, (du, dv): (f64, f64)) -> Vec3 {
         let q = p - c;
@@ -1323,13 +1333,7 @@ mod tests {
     /// 20 m) holding one landmark triangulated from them with 0.7 px of noise in keyframe 1,
     /// and keyframe 2 another 2.5 m on; returns it, the landmark id and the true point.
     fn short_baseline_landmark() -> (Tracker, usize, Vec3) {
-        let calib = Calibration {
-            fx: F,
-            fy: F,
-            cx: 0.0,
-            cy: 0.0,
-        };
-        let mut tr = Tracker::new(calib, TrackerConfig::default());
+        let mut tr = Tracker::new(calibration(0.0, 0.0), TrackerConfig::default());
         let centres = [
             Vec3::zeros(),
             Vec3::new(0.5, 0.0, 0.0),
@@ -1406,13 +1410,7 @@ mod tests {
     /// the turn).
     #[test]
     fn initialisation_restarts_when_the_reference_loses_its_matches() {
-        let calib = Calibration {
-            fx: F,
-            fy: F,
-            cx: 620.0,
-            cy: 188.0,
-        };
-        let mut tr = Tracker::new(calib, TrackerConfig::default());
+        let mut tr = Tracker::new(calibration(620.0, 188.0), TrackerConfig::default());
         let meta = |index| FrameMeta {
             index,
             stamp: index as f64 * 0.1,
@@ -1420,18 +1418,16 @@ mod tests {
         tr.step(meta(0), features(400, 0.0), None);
         assert_eq!(tr.reference().map(|r| r.0), Some(0));
         // many matches, too little parallax: keep waiting on frame 0
-        let many = Matches {
-            pairs: (0..300).map(|i| (i, i)).collect(),
-            scores: vec![1.0; 300],
+        let matches = |n: usize| Matches {
+            pairs: (0..n).map(|i| (i, i)).collect(),
+            scores: vec![1.0; n],
         };
+        let many = matches(300);
         let out = tr.step(meta(1), features(400, 2.0), Some(&many));
         assert_eq!(out.state, TrackingState::Initializing);
         assert_eq!(tr.reference().map(|r| r.0), Some(0));
         // fewer matches than an initialisation needs: frame 2 becomes the reference
-        let few = Matches {
-            pairs: (0..50).map(|i| (i, i)).collect(),
-            scores: vec![1.0; 50],
-        };
+        let few = matches(50);
         let out = tr.step(meta(2), features(400, 40.0), Some(&few));
         assert_eq!(out.state, TrackingState::Initializing);
         assert!(out.pose.is_none());
