@@ -795,7 +795,7 @@ impl Tracker {
     }
 
     /// The reference `kf` can no longer initialise: this frame becomes the reference, at the
-    /// reference's pose (as after a loss, the trajectory continues from the last known pose).
+    /// last known pose (the reference's own, as after a loss).
     fn restart_initialisation(
         &mut self,
         input: &FrameMeta,
@@ -809,17 +809,7 @@ impl Tracker {
             matches,
             "initialisation restarts from this frame"
         );
-        let out = self.output(
-            input,
-            TrackingState::Initializing,
-            None,
-            cur.len(),
-            (matches, 0),
-            false,
-        );
-        self.segment_start = self.keyframe_poses.len();
-        self.set_reference(input.index, kf.r, kf.t, cur);
-        out
+        self.start_over(input, cur, matches, TrackingState::Initializing)
     }
 
     fn initialise(&mut self, input: &FrameMeta, cur: Features, m: Option<&Matches>) -> FrameOutput {
@@ -986,6 +976,13 @@ impl Tracker {
             .collect();
         let thr_sq = (self.cfg.pnp.threshold_px / self.focal()).powi(2);
         let reproj_sq = supermvo_geometry::pnp::reprojection_sq;
+        let inliers_at = |r: &Mat3, t: &Vec3| -> Vec<bool> {
+            all_p
+                .iter()
+                .zip(&all_b)
+                .map(|(p, b)| reproj_sq(r, t, p, b) < thr_sq)
+                .collect()
+        };
         let (mut r, mut t) = (est.r, est.t);
         if predicted {
             // motion-model prediction: a PnP RANSAC over the local map's matches
@@ -1014,13 +1011,11 @@ impl Tracker {
                 let sb: Vec<Vec3> = sel.iter().map(|&i| all_b[i]).collect();
                 (r, t) = supermvo_geometry::pnp::refine_pose(&r, &t, &sp, &sb, 10);
             }
-            inlier = (0..all_p.len())
-                .map(|i| reproj_sq(&r, &t, &all_p[i], &all_b[i]) < thr_sq)
-                .collect();
+            inlier = inliers_at(&r, &t);
         }
         if self.cfg.robust_refinement {
             // the final pose: a smooth function of every match, not of the selection above
-            let thr = self.cfg.pnp.threshold_px / self.focal();
+            let thr = thr_sq.sqrt();
             let (r2, t2) = supermvo_geometry::pnp::refine_pose_robust(
                 &r,
                 &t,
@@ -1029,9 +1024,7 @@ impl Tracker {
                 (0.5 * thr, 3.0 * thr),
                 10,
             );
-            let inlier2: Vec<bool> = (0..all_p.len())
-                .map(|i| reproj_sq(&r2, &t2, &all_p[i], &all_b[i]) < thr_sq)
-                .collect();
+            let inlier2 = inliers_at(&r2, &t2);
             if inlier2.iter().filter(|&&x| x).count() >= self.cfg.min_tracked {
                 (r, t, inlier) = (r2, t2, inlier2);
             }
@@ -1156,20 +1149,27 @@ impl Tracker {
 impl Tracker {
     /// Lost: re-initialise from this frame at the last known pose.
     fn lost(&mut self, input: &FrameMeta, cur: Features, matches: usize) -> FrameOutput {
-        let out = self.output(
-            input,
-            TrackingState::Lost,
-            None,
-            cur.len(),
-            (matches, 0),
-            false,
-        );
+        self.start_over(input, cur, matches, TrackingState::Lost)
+    }
+
+    /// Drops the map and makes this frame the reference at the last known pose, in a new
+    /// segment (the next frames initialise against it); the frame itself has no pose and is
+    /// reported in `state`.
+    fn start_over(
+        &mut self,
+        input: &FrameMeta,
+        cur: Features,
+        matches: usize,
+        state: TrackingState,
+    ) -> FrameOutput {
+        let out = self.output(input, state, None, cur.len(), (matches, 0), false);
+        let frame = input.index;
         let (r, t) = self.last_pose;
         self.velocity = None;
         self.landmarks.clear();
         self.tracks.clear();
         self.segment_start = self.keyframe_poses.len();
-        self.set_reference(input.index, r, t, cur);
+        self.set_reference(frame, r, t, cur);
         self.frames_since_keyframe = 0;
         out
     }
