@@ -27,8 +27,6 @@ import sys
 import tempfile
 import time
 
-import numpy as np
-
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHARED = os.path.normpath(os.path.join(ROOT, "..", "shared", "data", "kitti", "sequences"))
 
@@ -37,9 +35,19 @@ def cache():
     return os.environ.get("SUPERMVO_CACHE") or os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "supermvo")
 
 
-def python_medians(runs, threads, size, keypoints, dump, sizes, rust, seq):
+# numpy, onnx and onnxruntime: the system's, or those the model scripts installed in the cache
+sys.path.append(os.path.join(cache(), "python"))
+try:
+    import numpy as np
+    import onnx  # noqa: F401
+    import onnxruntime  # noqa: F401
+except ImportError as e:
+    sys.exit(f"bench_frontend: {e}; run `bash tools/test.sh` once (it installs numpy, onnx and onnxruntime into "
+             f"{os.path.join(cache(), 'python')}) or `pip install numpy onnx onnxruntime`")
+
+
+def python_medians(runs, threads, size, keypoints, dump, sizes, rust):
     import onnxruntime as ort
-    from PIL import Image
     opts = ort.SessionOptions()
     opts.intra_op_num_threads, opts.inter_op_num_threads = threads, 1
     opts.add_session_config_entry("session.set_denormal_as_zero", "1")  # as the Rust sessions do
@@ -56,7 +64,7 @@ def python_medians(runs, threads, size, keypoints, dump, sizes, rust, seq):
         return statistics.median(t)
 
     w, h = size
-    img = np.asarray(Image.open(os.path.join(SHARED, "00", "image_0", "000000.png")).convert("L").resize((w, h), Image.BILINEAR), np.float32) / 255
+    img = np.fromfile(os.path.join(dump, "xfeat_input.f32"), "<f4").reshape(h, w)  # the pixels Rust's XFeat ran on
     out = {"xfeat_network_ms": med(lambda: xs.run(None, {"image": img[None, None]}))}
     for k in keypoints:
         (m, n), dim = sizes[k]
@@ -71,7 +79,7 @@ def python_medians(runs, threads, size, keypoints, dump, sizes, rust, seq):
         ar = rust["aliked_runs"]
         als = ort.InferenceSession(os.path.join(models, "aliked.onnx"), opts, providers=["CPUExecutionProvider"])
         lgs = ort.InferenceSession(os.path.join(models, "lightglue.onnx"), opts, providers=["CPUExecutionProvider"])
-        full = np.asarray(Image.open(os.path.join(SHARED, seq, "image_0", "000000.png")).convert("L"), np.float32) / 255
+        full = np.fromfile(os.path.join(dump, "frame_a.f32"), "<f4").reshape(rust["frame_size"][1], rust["frame_size"][0])
         out["aliked_extract_ms"] = med(lambda: als.run(None, {"image": full[None, None], "top_k": np.array([2048], np.int64)}), ar)
         for k in (1024, 2048):
             m, n = rust[f"aliked_{k}_sizes"]
@@ -81,6 +89,66 @@ def python_medians(runs, threads, size, keypoints, dump, sizes, rust, seq):
                 f = dict(feeds, min_matchability=np.array(minimum, np.float32), depth_confidence=np.array(depth, np.float32))
                 out[key] = med(lambda: lgs.run(None, f), ar)
     return out
+
+
+def matmul_floor(threads, dump, size, calls=5):
+    """Where one pruned LighterGlue call at 1024 keypoints spends its time, from ONNX Runtime's
+    own profiler (Python side, same settings as above), and how fast this machine's ONNX
+    Runtime multiplies float32 matrices at best (the fastest of 40 calls of a lone MatMul, same
+    threads, at three shapes): the network's MatMul FLOPs over that rate bound the call from
+    below whatever the rest of the graph does."""
+    import collections
+    import onnxruntime as ort
+    from onnx import TensorProto, helper
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads, opts.inter_op_num_threads = threads, 1
+    opts.add_session_config_entry("session.set_denormal_as_zero", "1")
+    opts.enable_profiling = True
+    opts.profile_file_prefix = os.path.join(dump, "lighterglue_profile")
+    ls = ort.InferenceSession(os.path.join(cache(), "models", "lighterglue.onnx"), opts, providers=["CPUExecutionProvider"])
+    (m, n), dim = size
+    load = lambda name, count, width: np.fromfile(os.path.join(dump, f"lighterglue_1024_{name}.f32"), "<f4").reshape(1, count, width)
+    feeds = {"kpts0": load("kpts0", m, 2), "kpts1": load("kpts1", n, 2), "desc0": load("desc0", m, dim), "desc1": load("desc1", n, dim),
+             "min_matchability": np.array(0.05, np.float32), "depth_confidence": np.array(-1.0, np.float32)}
+    for _ in range(3):
+        ls.run(None, feeds)
+    for _ in range(calls):
+        ls.run(None, feeds)
+    with open(ls.end_profiling()) as f:
+        events = json.load(f)
+    runs = [e["dur"] for e in events if e.get("name") == "model_run"]  # warm-up calls included, as in the kernel sums
+    time_by_op, flop = collections.Counter(), 0
+    for e in events:
+        args = e.get("args", {})
+        if e.get("cat") != "Node" or not e["name"].endswith("_kernel_time") or "op_name" not in args:
+            continue
+        time_by_op[args["op_name"]] += e["dur"]
+        if args["op_name"] in ("MatMul", "FusedMatMul", "Gemm"):
+            a = list(args["input_type_shape"][0].values())[0]  # no transposed A in our graphs
+            out = list(args["output_type_shape"][0].values())[0]
+            flop += 2 * int(np.prod(out)) * a[-1]
+    total = len(runs)
+    flop /= total
+    mm_ms = sum(time_by_op[op] for op in ("MatMul", "FusedMatMul", "Gemm")) / total / 1e3
+    popts = ort.SessionOptions()
+    popts.intra_op_num_threads, popts.inter_op_num_threads = threads, 1
+    peak = 0.0
+    for m, k, n in ((1024, 1024, 1024), (1024, 96, 1024), (1024, 192, 192)):  # a square one and the network's own
+        g = helper.make_graph([helper.make_node("MatMul", ["a", "b"], ["c"])], "peak",
+                              [helper.make_tensor_value_info("a", TensorProto.FLOAT, [m, k]),
+                               helper.make_tensor_value_info("b", TensorProto.FLOAT, [k, n])],
+                              [helper.make_tensor_value_info("c", TensorProto.FLOAT, [m, n])])
+        model = helper.make_model(g, opset_imports=[helper.make_opsetid("", 17)])
+        model.ir_version = 8
+        ps = ort.InferenceSession(model.SerializeToString(), popts, providers=["CPUExecutionProvider"])
+        rng = np.random.default_rng(0)
+        ab = {"a": rng.random((m, k), np.float32), "b": rng.random((k, n), np.float32)}
+        t = []
+        for _ in range(40):
+            s = time.perf_counter(); ps.run(None, ab); t.append(time.perf_counter() - s)
+        peak = max(peak, 2 * m * k * n / min(t) / 1e9)  # the best call: a bound, not a typical rate
+    return {"call_ms": statistics.median(runs) / 1e3, "kernel_ms": sum(time_by_op.values()) / total / 1e3, "matmul_ms": mm_ms,
+            "gflop": flop / 1e9, "peak_gflops": peak, "floor_ms": flop / 1e9 / peak * 1e3}
 
 
 def main():
@@ -102,7 +170,8 @@ def main():
             rust.append(r)
             ks = [k for k in (1024, 2048) if r[f"keypoints_{k}"] == k]
             sizes = {k: (r[f"sizes_{k}"], r[f"dim_{k}"]) for k in ks}
-            py.append(python_medians(args.runs, r["threads"], tuple(r["input_size"]), ks, dump, sizes, r, args.seq))
+            py.append(python_medians(args.runs, r["threads"], tuple(r["input_size"]), ks, dump, sizes, r))
+        floor = matmul_floor(rust[0]["threads"], dump, sizes[1024]) if 1024 in sizes else None
     med = lambda rows, key: statistics.median(x[key] for x in rows)
     w, h = rust[0]["input_size"]
     print(f"KITTI {args.seq} frames 0-1, network input {w}x{h}, {rust[0]['threads']} intra-op threads, "
@@ -131,6 +200,12 @@ def main():
             print(f"{k} keypoints: {kept[0]} and {kept[1]} reach the last layer; matches unpruned {mt['unpruned']}, "
                   f"pruned {mt['pruned']} ({mt['common']} of them also unpruned), pruned+stop {mt['early_stop']} "
                   f"({mt['early_stop_common']}) after {rust[0][f'lighterglue_{k}_early_stop_layers']} of 6 layers")
+    if floor:
+        print(f"LighterGlue 1024 pruned under the profiler (Python): {floor['call_ms']:.1f} ms a call, MatMul kernels "
+              f"{floor['matmul_ms']:.1f} ms for {floor['gflop']:.2f} GFLOP ({floor['gflop'] / floor['matmul_ms'] * 1e3:.0f} GFLOP/s), "
+              f"other kernels {floor['kernel_ms'] - floor['matmul_ms']:.1f} ms")
+        print(f"ONNX Runtime's fastest MatMul on this machine (best of 40 calls, 3 shapes): {floor['peak_gflops']:.0f} GFLOP/s "
+              f"-> the network's MatMuls alone need at least {floor['floor_ms']:.1f} ms")
     if "aliked_runs" in rust[0]:
         print(f"ALIKED/LightGlue: {rust[0]['aliked_runs']} calls per measurement; ALIKED keypoints scoring above 0.2 "
               f"among the 1024 / 2048 requested: {rust[0]['aliked_1024_sizes']} / {rust[0]['aliked_2048_sizes']}")

@@ -214,6 +214,10 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     )?;
     if let Some(dir) = dump {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        // the network inputs, so that the Python peer runs on exactly these pixels
+        write_f32(&dir.join("xfeat_input.f32"), &input)?;
+        let frame: Vec<f32> = a.data.iter().map(|&v| v as f32 / 255.0).collect();
+        write_f32(&dir.join("frame_a.f32"), &frame)?;
     }
     for k in [1024usize, 2048] {
         let mut x = XFeat::new(
@@ -285,6 +289,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         )?;
     }
     result.insert("input_size".into(), serde_json::json!([w, h]));
+    result.insert("frame_size".into(), serde_json::json!([a.width, a.height]));
     result.insert("threads".into(), (*threads).into());
     outln!("{}", serde_json::Value::Object(result));
     Ok(())
@@ -298,18 +303,21 @@ fn dump_matcher_inputs(
     fa: &supermvo_inference::Features,
     fb: &supermvo_inference::Features,
 ) -> Result<()> {
-    let raw = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
     for (name, data) in [
         ("kpts0", normalize_keypoints(fa)),
         ("kpts1", normalize_keypoints(fb)),
         ("desc0", fa.descriptors.clone()),
         ("desc1", fb.descriptors.clone()),
     ] {
-        let path = dir.join(format!("{prefix}_{name}.f32"));
-        std::fs::write(&path, raw(&data))
-            .with_context(|| format!("cannot write {}", path.display()))?;
+        write_f32(&dir.join(format!("{prefix}_{name}.f32")), &data)?;
     }
     Ok(())
+}
+
+/// Writes `data` as raw little-endian f32.
+fn write_f32(path: &std::path::Path, data: &[f32]) -> Result<()> {
+    let raw: Vec<u8> = data.iter().flat_map(|x| x.to_le_bytes()).collect();
+    std::fs::write(path, raw).with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// ALIKED (the whole graph at the image's size; Rust adds the u8 -> f32 conversion and the
