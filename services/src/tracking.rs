@@ -26,6 +26,7 @@ pub fn tracker_config(cfg: &PipelineConfig) -> TrackerConfig {
     let base = TrackerConfig {
         local_ba_window: cfg.ba_window,
         keyframe_ratio: cfg.keyframe_ratio,
+        relocalisation_frames: cfg.relocalisation_frames,
         ..TrackerConfig::default()
     }
     .with_seed(cfg.seed);

@@ -149,6 +149,10 @@ pub struct PipelineConfig {
     /// keyframe's (ORB-SLAM's rule); 0 (the default) leaves only the fixed count and the
     /// frame limit, [0, 1].
     pub keyframe_ratio: f64,
+    /// After a frame fails to track, the map is kept and the next frames are tracked
+    /// against it (at its own scale) for at most this many frames in a row before a new map
+    /// is started; 0 starts one at once, [0, 100].
+    pub relocalisation_frames: usize,
     /// Restarts allowed per stage before the supervisor gives up, [0, 100].
     pub max_restarts: u32,
     /// First restart delay in milliseconds, doubled on each further restart of a stage, [0, 10000].
@@ -200,6 +204,7 @@ impl Default for PipelineConfig {
             features_workers: 1,
             ba_window: 6,
             keyframe_ratio: 0.0,
+            relocalisation_frames: 5,
             max_restarts: 5,
             restart_backoff_ms: 100,
             deadline_ms: 20_000,
@@ -278,6 +283,7 @@ impl PipelineConfig {
         range("threads", self.threads, 1, 64)?;
         range("features_workers", self.features_workers, 1, 8)?;
         range("ba_window", self.ba_window, 0, 30)?;
+        range("relocalisation_frames", self.relocalisation_frames, 0, 100)?;
         range("max_restarts", self.max_restarts, 0, 100)?;
         range("restart_backoff_ms", self.restart_backoff_ms, 0, 10_000)?;
         range("deadline_ms", self.deadline_ms, 1000, 600_000)?;

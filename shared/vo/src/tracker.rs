@@ -2,7 +2,9 @@
 //! keyframe's landmarks followed by a search of the local map by projection (or, when the
 //! keyframe's landmarks fail, a constant-velocity prediction); keyframes whose unmatched
 //! matches extend pending tracks until they triangulate with enough parallax; a local
-//! bundle adjustment with older keyframes as fixed anchors; re-initialisation when lost.
+//! bundle adjustment with older keyframes as fixed anchors; after a blind frame (too few
+//! keypoints) the next frame is tracked against the map kept for it (relocalisation), and
+//! any other failure re-initialises.
 //!
 //! The tracker's own matching (the local-map search) is a descriptor comparison within a
 //! few pixels of a projection, done here because it needs the map; the networks' matches to
@@ -83,6 +85,16 @@ pub struct TrackerConfig {
     /// those a hard threshold selected: the pose then depends on the data, not on which
     /// points RANSAC's sample happened to let through, and the run far less on the seed.
     pub robust_refinement: bool,
+    /// Relocalisation after blind frames: a frame with fewer keypoints than `min_tracked`
+    /// (a black, washed-out or covered image) is lost without ending the map, and the next
+    /// frame is tracked against the map and reference keyframe kept for it (PnP on its
+    /// matches to the keyframe's landmarks, at the map's own scale) instead of starting a
+    /// new map whose scale the median depth only approximates; at most this many blind
+    /// frames in a row, then the tracker starts over. Any other failure (a frame whose
+    /// matches do not reach the map, or do but disagree with it) starts over at once:
+    /// retrying a map the frame contradicts only delays the new one (KITTI 01, where the
+    /// first maps fail). 0: blind frames start over too.
+    pub relocalisation_frames: usize,
     /// Essential-matrix RANSAC.
     pub ransac: RansacConfig,
     /// PnP RANSAC.
@@ -110,6 +122,7 @@ impl Default for TrackerConfig {
             map_search_ratio: 0.9,
             reobserve_max_px: 6.0,
             robust_refinement: true,
+            relocalisation_frames: 5,
             ransac: RansacConfig::default(),
             pnp: PnpConfig::default(),
         }
@@ -152,7 +165,8 @@ pub enum TrackingState {
     Initializing,
     /// Pose estimated.
     Tracking,
-    /// Tracking failed on this frame; the tracker re-initialises.
+    /// Tracking failed on this frame; the tracker tries the next frame against the map it
+    /// has (after a blind frame: relocalisation) or re-initialises.
     Lost,
 }
 
@@ -240,6 +254,8 @@ pub struct Tracker {
     /// Motion between the last two tracked frames, `T_last_prev` (rotation, translation):
     /// the constant-velocity prediction used when the keyframe matches fail.
     velocity: Option<(Mat3, Vec3)>,
+    /// Blind frames in a row for which the map was kept (relocalisation).
+    lost_streak: usize,
     /// The last local BA, until taken.
     last_ba: Option<BaStats>,
     /// Scale of the map (median landmark depth at initialisation), to carry across
@@ -297,6 +313,7 @@ impl Tracker {
             frames_since_keyframe: 0,
             last_pose: (Mat3::identity(), Vec3::zeros()),
             velocity: None,
+            lost_streak: 0,
             last_ba: None,
             scale: None,
         }
@@ -364,11 +381,14 @@ impl Tracker {
     }
 
     /// The pose of the next frame under constant velocity (`None` until two frames were
-    /// tracked in a row).
+    /// tracked in a row), across the frames that failed since the last tracked one.
     fn predict(&self) -> Option<(Mat3, Vec3)> {
         let (rv, tv) = self.velocity?;
-        let (r, t) = self.last_pose;
-        Some((rv * r, rv * t + tv))
+        let (mut r, mut t) = self.last_pose;
+        for _ in 0..=self.lost_streak {
+            (r, t) = (rv * r, rv * t + tv);
+        }
+        Some((r, t))
     }
 
     /// The local-map search: projects every landmark of the local map not in `skip` into
@@ -623,6 +643,7 @@ impl Tracker {
         let t = -(r * t_world_cam.t);
         self.last_pose = (r, t);
         self.velocity = None;
+        self.lost_streak = 0;
         self.scale = scale;
         self.keyframe = None;
         self.landmarks.clear();
@@ -848,6 +869,10 @@ impl Tracker {
             "initialising"
         );
         if m.pairs.len() < self.cfg.min_init_landmarks {
+            if cur.len() < self.cfg.min_tracked {
+                // a blind frame (black, covered) says nothing about the reference
+                return self.not_yet(input, kf, cur.len(), (m.pairs.len(), 0));
+            }
             // too few matches left for this reference ever to initialise (the view has moved
             // on, e.g. after a failed attempt in a turn): start again from this frame
             return self.restart_initialisation(input, kf, cur, m.pairs.len());
@@ -914,8 +939,11 @@ impl Tracker {
     }
 
     fn track(&mut self, input: &FrameMeta, cur: Features, m: Option<&Matches>) -> FrameOutput {
-        let (Some(kf), Some(m)) = (self.keyframe.take(), m) else {
+        let Some(kf) = self.keyframe.take() else {
             return self.lost(input, cur, 0);
+        };
+        let Some(m) = m else {
+            return self.failed(input, kf, cur, 0);
         };
         let with_lm: Vec<(usize, usize, usize)> = m
             .pairs
@@ -944,7 +972,7 @@ impl Tracker {
                 })
             });
         let Some(est) = est else {
-            return self.lost(input, cur, m.pairs.len());
+            return self.failed(input, kf, cur, m.pairs.len());
         };
         // the local map: landmarks of the window that this keyframe does not carry
         let mut taken = vec![false; cur.len()];
@@ -989,7 +1017,7 @@ impl Tracker {
             let Some(e) = solve_pnp_ransac(&all_p, &all_b, self.focal(), &self.cfg.pnp)
                 .filter(|e| e.inlier_count() >= self.cfg.min_tracked)
             else {
-                return self.lost(input, cur, m.pairs.len());
+                return self.failed(input, kf, cur, m.pairs.len());
             };
             (r, t) = (e.r, e.t);
         }
@@ -1031,7 +1059,7 @@ impl Tracker {
         }
         let tracked = inlier.iter().filter(|&&x| x).count();
         if tracked < self.cfg.min_tracked {
-            return self.lost(input, cur, m.pairs.len());
+            return self.failed(input, kf, cur, m.pairs.len());
         }
         let map_inliers = inlier[pw.len()..].iter().filter(|&&x| x).count();
         if tracing::enabled!(tracing::Level::DEBUG) {
@@ -1053,9 +1081,16 @@ impl Tracker {
                 "tracked"
             );
         }
-        let (lr, lt) = self.last_pose;
-        let rv = r * lr.transpose();
-        self.velocity = Some((rv, t - rv * lt));
+        if self.lost_streak > 0 {
+            // relocalised: the motion since the last tracked pose spans the failed frames
+            tracing::debug!(frame = input.index, after = self.lost_streak, "relocalised");
+            self.velocity = None;
+            self.lost_streak = 0;
+        } else {
+            let (lr, lt) = self.last_pose;
+            let rv = r * lr.transpose();
+            self.velocity = Some((rv, t - rv * lt));
+        }
         self.last_pose = (r, t);
         self.frames_since_keyframe += 1;
         // the reference keyframe's established landmarks (seen by 3 or more keyframes, as
@@ -1147,6 +1182,39 @@ impl Tracker {
 }
 
 impl Tracker {
+    /// A frame that failed to track against `kf` (`matches` to it): lost, and either the map
+    /// is kept for the next frames (a blind frame, `relocalisation_frames`) or the tracker
+    /// starts over from this frame.
+    fn failed(
+        &mut self,
+        input: &FrameMeta,
+        kf: Keyframe,
+        cur: Features,
+        matches: usize,
+    ) -> FrameOutput {
+        let blind = cur.len() < self.cfg.min_tracked;
+        if blind && self.lost_streak < self.cfg.relocalisation_frames {
+            self.lost_streak += 1;
+            tracing::debug!(
+                frame = input.index,
+                keypoints = cur.len(),
+                streak = self.lost_streak,
+                "blind frame: keeping the map to relocalise"
+            );
+            let out = self.output(
+                input,
+                TrackingState::Lost,
+                None,
+                cur.len(),
+                (matches, 0),
+                false,
+            );
+            self.keyframe = Some(kf);
+            return out;
+        }
+        self.lost(input, cur, matches)
+    }
+
     /// Lost: re-initialise from this frame at the last known pose.
     fn lost(&mut self, input: &FrameMeta, cur: Features, matches: usize) -> FrameOutput {
         self.start_over(input, cur, matches, TrackingState::Lost)
@@ -1166,6 +1234,7 @@ impl Tracker {
         let frame = input.index;
         let (r, t) = self.last_pose;
         self.velocity = None;
+        self.lost_streak = 0;
         self.landmarks.clear();
         self.tracks.clear();
         self.segment_start = self.keyframe_poses.len();
@@ -1432,5 +1501,14 @@ mod tests {
         assert_eq!(out.state, TrackingState::Initializing);
         assert!(out.pose.is_none());
         assert_eq!(tr.reference().map(|r| r.0), Some(2));
+        // a blind frame (no keypoints, so no matches) says nothing about the reference: it
+        // stays
+        let none = matches(0);
+        let out = tr.step(meta(3), features(0, 0.0), Some(&none));
+        assert_eq!(out.state, TrackingState::Initializing);
+        assert_eq!(tr.reference().map(|r| r.0), Some(2));
+        // a frame with keypoints that do not reach the reference does replace it
+        tr.step(meta(4), features(400, 0.0), Some(&none));
+        assert_eq!(tr.reference().map(|r| r.0), Some(4));
     }
 }

@@ -61,6 +61,10 @@ pub struct RunArgs {
     /// off [pipeline.keyframe_ratio].
     #[arg(long)]
     keyframe_ratio: Option<f64>,
+    /// Frames in a row tried against the kept map after tracking fails, before a new map is
+    /// started; 0 starts one at once [pipeline.relocalisation_frames].
+    #[arg(long)]
+    relocalisation_frames: Option<usize>,
     /// Seed of the tracker's RANSAC sampling; 0 gives the reported runs [pipeline.seed].
     #[arg(long)]
     seed: Option<u64>,
@@ -104,6 +108,9 @@ impl RunArgs {
         }
         if let Some(v) = self.keyframe_ratio {
             p.keyframe_ratio = v;
+        }
+        if let Some(v) = self.relocalisation_frames {
+            p.relocalisation_frames = v;
         }
         if let Some(v) = self.max_frames {
             p.max_frames = v;
