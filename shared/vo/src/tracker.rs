@@ -815,24 +815,6 @@ impl Tracker {
         out
     }
 
-    /// The reference `kf` can no longer initialise: this frame becomes the reference, at the
-    /// last known pose (the reference's own, as after a loss).
-    fn restart_initialisation(
-        &mut self,
-        input: &FrameMeta,
-        kf: Keyframe,
-        cur: Features,
-        matches: usize,
-    ) -> FrameOutput {
-        tracing::debug!(
-            frame = input.index,
-            reference = kf.frame,
-            matches,
-            "initialisation restarts from this frame"
-        );
-        self.start_over(input, cur, matches, TrackingState::Initializing)
-    }
-
     fn initialise(&mut self, input: &FrameMeta, cur: Features, m: Option<&Matches>) -> FrameOutput {
         let Some(kf) = self.keyframe.take() else {
             // first frame (or first after a loss): becomes the reference at the last pose
@@ -869,13 +851,11 @@ impl Tracker {
             "initialising"
         );
         if m.pairs.len() < self.cfg.min_init_landmarks {
-            if cur.len() < self.cfg.min_tracked {
-                // a blind frame (black, covered) says nothing about the reference
-                return self.not_yet(input, kf, cur.len(), (m.pairs.len(), 0));
-            }
             // too few matches left for this reference ever to initialise (the view has moved
-            // on, e.g. after a failed attempt in a turn): start again from this frame
-            return self.restart_initialisation(input, kf, cur, m.pairs.len());
+            // on, e.g. after a failed attempt in a turn): start again from this frame, unless
+            // the frame is blind
+            let state = TrackingState::Initializing;
+            return self.unusable_reference(input, kf, cur, m.pairs.len(), state);
         }
         if parallax < self.cfg.min_parallax_px {
             return self.not_yet(input, kf, cur.len(), (m.pairs.len(), 0));
@@ -943,7 +923,7 @@ impl Tracker {
             return self.lost(input, cur, 0);
         };
         let Some(m) = m else {
-            return self.failed(input, kf, cur, 0);
+            return self.unusable_reference(input, kf, cur, 0, TrackingState::Lost);
         };
         let with_lm: Vec<(usize, usize, usize)> = m
             .pairs
@@ -972,7 +952,7 @@ impl Tracker {
                 })
             });
         let Some(est) = est else {
-            return self.failed(input, kf, cur, m.pairs.len());
+            return self.unusable_reference(input, kf, cur, m.pairs.len(), TrackingState::Lost);
         };
         // the local map: landmarks of the window that this keyframe does not carry
         let mut taken = vec![false; cur.len()];
@@ -1017,7 +997,7 @@ impl Tracker {
             let Some(e) = solve_pnp_ransac(&all_p, &all_b, self.focal(), &self.cfg.pnp)
                 .filter(|e| e.inlier_count() >= self.cfg.min_tracked)
             else {
-                return self.failed(input, kf, cur, m.pairs.len());
+                return self.unusable_reference(input, kf, cur, m.pairs.len(), TrackingState::Lost);
             };
             (r, t) = (e.r, e.t);
         }
@@ -1059,7 +1039,7 @@ impl Tracker {
         }
         let tracked = inlier.iter().filter(|&&x| x).count();
         if tracked < self.cfg.min_tracked {
-            return self.failed(input, kf, cur, m.pairs.len());
+            return self.unusable_reference(input, kf, cur, m.pairs.len(), TrackingState::Lost);
         }
         let map_inliers = inlier[pw.len()..].iter().filter(|&&x| x).count();
         if tracing::enabled!(tracing::Level::DEBUG) {
@@ -1182,17 +1162,25 @@ impl Tracker {
 }
 
 impl Tracker {
-    /// A frame that failed to track against `kf` (`matches` to it): lost, and either the map
-    /// is kept for the next frames (a blind frame, `relocalisation_frames`) or the tracker
-    /// starts over from this frame.
-    fn failed(
+    /// A frame that could not use the reference `kf` (`matches` to it), reported as `state`:
+    /// `Initializing` while the reference waits to initialise, `Lost` when tracking against
+    /// it failed. A blind frame (fewer keypoints than tracking needs: black, washed out,
+    /// covered) says nothing about the reference, which stays: while initialising, and while
+    /// tracking for at most `relocalisation_frames` blind frames in a row, with its map, so
+    /// that the next frame relocalises on it at the map's scale. Any other frame starts over
+    /// from itself at the last known pose.
+    fn unusable_reference(
         &mut self,
         input: &FrameMeta,
         kf: Keyframe,
         cur: Features,
         matches: usize,
+        state: TrackingState,
     ) -> FrameOutput {
         let blind = cur.len() < self.cfg.min_tracked;
+        if blind && state == TrackingState::Initializing {
+            return self.not_yet(input, kf, cur.len(), (matches, 0));
+        }
         if blind && self.lost_streak < self.cfg.relocalisation_frames {
             self.lost_streak += 1;
             tracing::debug!(
@@ -1212,7 +1200,14 @@ impl Tracker {
             self.keyframe = Some(kf);
             return out;
         }
-        self.lost(input, cur, matches)
+        tracing::debug!(
+            frame = input.index,
+            reference = kf.frame,
+            matches,
+            ?state,
+            "starting over from this frame"
+        );
+        self.start_over(input, cur, matches, state)
     }
 
     /// Lost: re-initialise from this frame at the last known pose.
