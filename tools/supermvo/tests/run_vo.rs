@@ -92,8 +92,9 @@ fn bad_sequences_are_clear_errors() {
 }
 
 /// A KITTI 00 excerpt with a black frame, a stretch without motion (one frame repeated) and a
-/// missing (unreadable) frame: the run finishes, every frame gets a logged state, and the
-/// poses estimated before the black frame are kept.
+/// missing (unreadable) frame: the run finishes, every frame gets a logged state, the poses
+/// estimated before the black frame are kept, the frame after it is tracked on the same map,
+/// and the daemon gives the same trajectory.
 #[test]
 fn black_frame_no_motion_and_unreadable_frame_are_states_not_failures() {
     let Some(src) = common::shared_data("kitti/sequences/00") else {
@@ -172,6 +173,24 @@ fn black_frame_no_motion_and_unreadable_frame_are_states_not_failures() {
         .count();
     assert!(posed_before >= 8, "{frames:?}");
     assert!(traj.lines().count() >= posed_before);
+    // the daemon (one process per stage) relocalises the same way, bit for bit
+    let daemon = tmp.path().join("daemon");
+    let r = common::supermvo(&[
+        "run",
+        seq.to_str().unwrap(),
+        "--mode",
+        "multiprocess",
+        "--name",
+        "runvo-black-frame",
+        "-q",
+        "--out",
+        daemon.to_str().unwrap(),
+    ]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    assert_eq!(
+        std::fs::read_to_string(daemon.join("trajectory.tum.txt")).unwrap(),
+        traj
+    );
 }
 
 /// A trajectory file as (frame index at 10 Hz, rotation, position).
