@@ -131,17 +131,16 @@ fn black_frame_no_motion_and_unreadable_frame_are_states_not_failures() {
         times.push_str(&format!("{:.6}\n", i as f64 * 0.1));
     }
     std::fs::write(seq.join("times.txt"), times).unwrap();
+    // the excerpt in one process or in the daemon (pipeline name `runvo-black-frame`)
+    let run = |mode: &str, out: &std::path::Path| {
+        let (seq, out) = (seq.to_str().unwrap(), out.to_str().unwrap());
+        let args = ["run", seq, "--mode", mode, "--name", "runvo-black-frame"];
+        let r = common::supermvo(&[&args[..], &["-q", "--out", out]].concat());
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        r
+    };
     let out = tmp.path().join("out");
-    let r = common::supermvo(&[
-        "run",
-        seq.to_str().unwrap(),
-        "--mode",
-        "inprocess",
-        "-q",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let r = run("inprocess", &out);
     assert!(
         String::from_utf8_lossy(&r.stderr).contains("frame 18"),
         "the unreadable frame is logged"
@@ -175,18 +174,7 @@ fn black_frame_no_motion_and_unreadable_frame_are_states_not_failures() {
     assert!(traj.lines().count() >= posed_before);
     // the daemon (one process per stage) relocalises the same way, bit for bit
     let daemon = tmp.path().join("daemon");
-    let r = common::supermvo(&[
-        "run",
-        seq.to_str().unwrap(),
-        "--mode",
-        "multiprocess",
-        "--name",
-        "runvo-black-frame",
-        "-q",
-        "--out",
-        daemon.to_str().unwrap(),
-    ]);
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    run("multiprocess", &daemon);
     assert_eq!(
         std::fs::read_to_string(daemon.join("trajectory.tum.txt")).unwrap(),
         traj
