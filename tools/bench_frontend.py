@@ -40,17 +40,33 @@ sys.path.append(os.path.join(cache(), "python"))
 try:
     import numpy as np
     import onnx  # noqa: F401
-    import onnxruntime  # noqa: F401
+    import onnxruntime as ort
 except ImportError as e:
     sys.exit(f"bench_frontend: {e}; run `bash tools/test.sh` once (it installs numpy, onnx and onnxruntime into "
              f"{os.path.join(cache(), 'python')}) or `pip install numpy onnx onnxruntime`")
 
 
-def python_medians(runs, threads, size, keypoints, dump, sizes, rust):
-    import onnxruntime as ort
+def session_options(threads):
+    """The Rust sessions' settings: `threads` intra-op threads, one inter-op, subnormals flushed."""
     opts = ort.SessionOptions()
     opts.intra_op_num_threads, opts.inter_op_num_threads = threads, 1
-    opts.add_session_config_entry("session.set_denormal_as_zero", "1")  # as the Rust sessions do
+    opts.add_session_config_entry("session.set_denormal_as_zero", "1")
+    return opts
+
+
+def matcher_inputs(dump, prefix, m, n, dim):
+    """The keypoints and descriptors the Rust side wrote with `--dump` (`{prefix}_kpts0.f32`...)."""
+    load = lambda name, count, width: np.fromfile(os.path.join(dump, f"{prefix}_{name}.f32"), "<f4").reshape(1, count, width)
+    return {"kpts0": load("kpts0", m, 2), "kpts1": load("kpts1", n, 2), "desc0": load("desc0", m, dim), "desc1": load("desc1", n, dim)}
+
+
+def settings(feeds, minimum, depth):
+    """`feeds` with the matcher's pruning (`min_matchability`) and early stopping set."""
+    return dict(feeds, min_matchability=np.array(minimum, np.float32), depth_confidence=np.array(depth, np.float32))
+
+
+def python_medians(runs, threads, size, keypoints, dump, sizes, rust):
+    opts = session_options(threads)
     models = os.path.join(cache(), "models")
     xs = ort.InferenceSession(os.path.join(models, "xfeat.onnx"), opts, providers=["CPUExecutionProvider"])
     ls = ort.InferenceSession(os.path.join(models, "lighterglue.onnx"), opts, providers=["CPUExecutionProvider"])
@@ -68,12 +84,11 @@ def python_medians(runs, threads, size, keypoints, dump, sizes, rust):
     out = {"xfeat_network_ms": med(lambda: xs.run(None, {"image": img[None, None]}))}
     for k in keypoints:
         (m, n), dim = sizes[k]
-        load = lambda name, count, width: np.fromfile(os.path.join(dump, f"lighterglue_{k}_{name}.f32"), "<f4").reshape(1, count, width)
-        feeds = {"kpts0": load("kpts0", m, 2), "kpts1": load("kpts1", n, 2), "desc0": load("desc0", m, dim), "desc1": load("desc1", n, dim)}
+        feeds = matcher_inputs(dump, f"lighterglue_{k}", m, n, dim)
         for key, minimum, depth in ((f"lighterglue_{k}_network_ms", 0.05, -1.0),
                                     (f"lighterglue_{k}_network_unpruned_ms", -1.0, -1.0),
                                     (f"lighterglue_{k}_network_early_stop_ms", 0.05, 0.95)):
-            f = dict(feeds, min_matchability=np.array(minimum, np.float32), depth_confidence=np.array(depth, np.float32))
+            f = settings(feeds, minimum, depth)
             out[key] = med(lambda: ls.run(None, f))
     if "aliked_runs" in rust:  # ALIKED + LightGlue, fewer calls (seconds each)
         ar = rust["aliked_runs"]
@@ -83,10 +98,9 @@ def python_medians(runs, threads, size, keypoints, dump, sizes, rust):
         out["aliked_extract_ms"] = med(lambda: als.run(None, {"image": full[None, None], "top_k": np.array([2048], np.int64)}), ar)
         for k in (1024, 2048):
             m, n = rust[f"aliked_{k}_sizes"]
-            load = lambda name, count, width: np.fromfile(os.path.join(dump, f"lightglue_{k}_{name}.f32"), "<f4").reshape(1, count, width)
-            feeds = {"kpts0": load("kpts0", m, 2), "kpts1": load("kpts1", n, 2), "desc0": load("desc0", m, 128), "desc1": load("desc1", n, 128)}
+            feeds = matcher_inputs(dump, f"lightglue_{k}", m, n, 128)
             for key, minimum, depth in ((f"lightglue_{k}_network_ms", 0.01, 0.95), (f"lightglue_{k}_network_full_ms", -1.0, -1.0)):
-                f = dict(feeds, min_matchability=np.array(minimum, np.float32), depth_confidence=np.array(depth, np.float32))
+                f = settings(feeds, minimum, depth)
                 out[key] = med(lambda: lgs.run(None, f), ar)
     return out
 
@@ -98,18 +112,13 @@ def matmul_floor(threads, dump, size, calls=5):
     threads, at three shapes): the network's MatMul FLOPs over that rate bound the call from
     below whatever the rest of the graph does."""
     import collections
-    import onnxruntime as ort
     from onnx import TensorProto, helper
-    opts = ort.SessionOptions()
-    opts.intra_op_num_threads, opts.inter_op_num_threads = threads, 1
-    opts.add_session_config_entry("session.set_denormal_as_zero", "1")
+    opts = session_options(threads)
     opts.enable_profiling = True
     opts.profile_file_prefix = os.path.join(dump, "lighterglue_profile")
     ls = ort.InferenceSession(os.path.join(cache(), "models", "lighterglue.onnx"), opts, providers=["CPUExecutionProvider"])
     (m, n), dim = size
-    load = lambda name, count, width: np.fromfile(os.path.join(dump, f"lighterglue_1024_{name}.f32"), "<f4").reshape(1, count, width)
-    feeds = {"kpts0": load("kpts0", m, 2), "kpts1": load("kpts1", n, 2), "desc0": load("desc0", m, dim), "desc1": load("desc1", n, dim),
-             "min_matchability": np.array(0.05, np.float32), "depth_confidence": np.array(-1.0, np.float32)}
+    feeds = settings(matcher_inputs(dump, "lighterglue_1024", m, n, dim), 0.05, -1.0)
     for _ in range(3):
         ls.run(None, feeds)
     for _ in range(calls):
@@ -130,23 +139,22 @@ def matmul_floor(threads, dump, size, calls=5):
     total = len(runs)
     flop /= total
     mm_ms = sum(time_by_op[op] for op in ("MatMul", "FusedMatMul", "Gemm")) / total / 1e3
-    popts = ort.SessionOptions()
-    popts.intra_op_num_threads, popts.inter_op_num_threads = threads, 1
+    popts = session_options(threads)
     peak = 0.0
-    for m, k, n in ((1024, 1024, 1024), (1024, 96, 1024), (1024, 192, 192)):  # a square one and the network's own
+    for rows, inner, cols in ((1024, 1024, 1024), (1024, 96, 1024), (1024, 192, 192)):  # a square one and the network's own
         g = helper.make_graph([helper.make_node("MatMul", ["a", "b"], ["c"])], "peak",
-                              [helper.make_tensor_value_info("a", TensorProto.FLOAT, [m, k]),
-                               helper.make_tensor_value_info("b", TensorProto.FLOAT, [k, n])],
-                              [helper.make_tensor_value_info("c", TensorProto.FLOAT, [m, n])])
+                              [helper.make_tensor_value_info("a", TensorProto.FLOAT, [rows, inner]),
+                               helper.make_tensor_value_info("b", TensorProto.FLOAT, [inner, cols])],
+                              [helper.make_tensor_value_info("c", TensorProto.FLOAT, [rows, cols])])
         model = helper.make_model(g, opset_imports=[helper.make_opsetid("", 17)])
         model.ir_version = 8
         ps = ort.InferenceSession(model.SerializeToString(), popts, providers=["CPUExecutionProvider"])
         rng = np.random.default_rng(0)
-        ab = {"a": rng.random((m, k), np.float32), "b": rng.random((k, n), np.float32)}
+        ab = {"a": rng.random((rows, inner), np.float32), "b": rng.random((inner, cols), np.float32)}
         t = []
         for _ in range(40):
-            s = time.perf_counter(); ps.run(None, ab); t.append(time.perf_counter() - s)
-        peak = max(peak, 2 * m * k * n / min(t) / 1e9)  # the best call: a bound, not a typical rate
+            start = time.perf_counter(); ps.run(None, ab); t.append(time.perf_counter() - start)
+        peak = max(peak, 2 * rows * inner * cols / min(t) / 1e9)  # the best call: a bound, not a typical rate
     return {"call_ms": statistics.median(runs) / 1e3, "kernel_ms": sum(time_by_op.values()) / total / 1e3, "matmul_ms": mm_ms,
             "gflop": flop / 1e9, "peak_gflops": peak, "floor_ms": flop / 1e9 / peak * 1e3}
 

@@ -794,23 +794,17 @@ impl Tracker {
             .retain(|_, obs| obs.last().is_some_and(|(k, _)| *k >= newest));
     }
 
-    /// Not enough for the two-view initialisation yet: the reference stays, this frame has no
-    /// pose.
-    fn not_yet(
+    /// This frame has no pose and the reference `kf` stays: not enough for the two-view
+    /// initialisation yet (`Initializing`), or a blind frame while tracking (`Lost`).
+    fn keep_reference(
         &mut self,
         input: &FrameMeta,
         kf: Keyframe,
+        state: TrackingState,
         keypoints: usize,
         counts: (usize, usize),
     ) -> FrameOutput {
-        let out = self.output(
-            input,
-            TrackingState::Initializing,
-            None,
-            keypoints,
-            counts,
-            false,
-        );
+        let out = self.output(input, state, None, keypoints, counts, false);
         self.keyframe = Some(kf);
         out
     }
@@ -858,7 +852,13 @@ impl Tracker {
             return self.unusable_reference(input, kf, cur, m.pairs.len(), state);
         }
         if parallax < self.cfg.min_parallax_px {
-            return self.not_yet(input, kf, cur.len(), (m.pairs.len(), 0));
+            return self.keep_reference(
+                input,
+                kf,
+                TrackingState::Initializing,
+                cur.len(),
+                (m.pairs.len(), 0),
+            );
         }
         let x1: Vec<Vec3> = m
             .pairs
@@ -871,7 +871,13 @@ impl Tracker {
             .map(|&(_, b)| bearing(&self.calib, &cur.keypoints[b]))
             .collect();
         let Some(est) = find_essential(&x1, &x2, self.focal(), &self.cfg.ransac) else {
-            return self.not_yet(input, kf, cur.len(), (m.pairs.len(), 0));
+            return self.keep_reference(
+                input,
+                kf,
+                TrackingState::Initializing,
+                cur.len(),
+                (m.pairs.len(), 0),
+            );
         };
         let (r_rel, t_rel, _) = recover_pose(&est.e, &x1, &x2, &est.inliers, 1e3);
         // scale: unit baseline at the first initialisation; afterwards keep the map's scale
@@ -887,7 +893,13 @@ impl Tracker {
         let unit =
             self.triangulate_pairs(identity, &kf.features.keypoints, &cur, &r_rel, &t_rel, &inl);
         if unit.len() < self.cfg.min_init_landmarks {
-            return self.not_yet(input, kf, cur.len(), (m.pairs.len(), unit.len()));
+            return self.keep_reference(
+                input,
+                kf,
+                TrackingState::Initializing,
+                cur.len(),
+                (m.pairs.len(), unit.len()),
+            );
         }
         let mut depths: Vec<f64> = unit.iter().map(|(_, _, p)| p.z).collect();
         depths.sort_by(f64::total_cmp);
@@ -1178,27 +1190,18 @@ impl Tracker {
         state: TrackingState,
     ) -> FrameOutput {
         let blind = cur.len() < self.cfg.min_tracked;
-        if blind && state == TrackingState::Initializing {
-            return self.not_yet(input, kf, cur.len(), (matches, 0));
-        }
-        if blind && self.lost_streak < self.cfg.relocalisation_frames {
-            self.lost_streak += 1;
-            tracing::debug!(
-                frame = input.index,
-                keypoints = cur.len(),
-                streak = self.lost_streak,
-                "blind frame: keeping the map to relocalise"
-            );
-            let out = self.output(
-                input,
-                TrackingState::Lost,
-                None,
-                cur.len(),
-                (matches, 0),
-                false,
-            );
-            self.keyframe = Some(kf);
-            return out;
+        let initialising = state == TrackingState::Initializing;
+        if blind && (initialising || self.lost_streak < self.cfg.relocalisation_frames) {
+            if !initialising {
+                self.lost_streak += 1;
+                tracing::debug!(
+                    frame = input.index,
+                    keypoints = cur.len(),
+                    streak = self.lost_streak,
+                    "blind frame: keeping the map to relocalise"
+                );
+            }
+            return self.keep_reference(input, kf, state, cur.len(), (matches, 0));
         }
         tracing::debug!(
             frame = input.index,
@@ -1226,14 +1229,13 @@ impl Tracker {
         state: TrackingState,
     ) -> FrameOutput {
         let out = self.output(input, state, None, cur.len(), (matches, 0), false);
-        let frame = input.index;
         let (r, t) = self.last_pose;
         self.velocity = None;
         self.lost_streak = 0;
         self.landmarks.clear();
         self.tracks.clear();
         self.segment_start = self.keyframe_poses.len();
-        self.set_reference(frame, r, t, cur);
+        self.set_reference(input.index, r, t, cur);
         self.frames_since_keyframe = 0;
         out
     }
