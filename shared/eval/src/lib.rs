@@ -7,7 +7,6 @@
 mod associate;
 mod kitti_metric;
 mod metrics;
-pub mod plot;
 mod stats;
 
 pub use associate::{associate, matching_indices};

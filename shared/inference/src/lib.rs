@@ -24,63 +24,7 @@ pub mod xfeat;
 
 pub use error::InferenceError;
 pub use supermvo_dataset::GrayImage;
-
-/// Keypoints of one image with their scores and L2-normalised descriptors.
-#[derive(Debug, Clone, PartialEq, Default)]
-pub struct Features {
-    /// Keypoint positions `(x, y)` in pixels of the input image.
-    pub keypoints: Vec<[f32; 2]>,
-    /// Detection scores, one per keypoint, in descending order.
-    pub scores: Vec<f32>,
-    /// Descriptors, `keypoints.len() * dim` values, row per keypoint.
-    pub descriptors: Vec<f32>,
-    /// Descriptor length.
-    pub dim: usize,
-    /// `(width, height)` of the image the features come from.
-    pub image_size: (usize, usize),
-}
-
-impl Features {
-    /// Number of keypoints.
-    pub fn len(&self) -> usize {
-        self.keypoints.len()
-    }
-
-    /// True when there are no keypoints.
-    pub fn is_empty(&self) -> bool {
-        self.keypoints.is_empty()
-    }
-
-    /// Descriptor of keypoint `i`.
-    pub fn descriptor(&self, i: usize) -> &[f32] {
-        &self.descriptors[i * self.dim..(i + 1) * self.dim]
-    }
-}
-
-/// Normalised distance between two descriptors of one front end, in [0, 1]: `1 - cos` for
-/// float (L2-normalised) descriptors, the Hamming distance / 256 for ORB's 256 bits stored
-/// as [`orb::ORB_WORDS`] bit-cast words.
-pub fn descriptor_distance(a: &[f32], b: &[f32]) -> f32 {
-    if a.len() == orb::ORB_WORDS {
-        let bits: u32 = a
-            .iter()
-            .zip(b)
-            .map(|(x, y)| (x.to_bits() ^ y.to_bits()).count_ones())
-            .sum();
-        bits as f32 / 256.0
-    } else {
-        1.0 - a.iter().zip(b).map(|(x, y)| x * y).sum::<f32>()
-    }
-}
-
-/// Matches between two feature sets.
-#[derive(Debug, Clone, PartialEq, Default)]
-pub struct Matches {
-    /// `(index in first set, index in second set)`.
-    pub pairs: Vec<(usize, usize)>,
-    /// Confidence of each pair.
-    pub scores: Vec<f32>,
-}
+pub use supermvo_features::{descriptor_distance, Features, Matches};
 
 /// Detects keypoints and computes descriptors.
 pub trait Extractor {

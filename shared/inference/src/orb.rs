@@ -41,7 +41,7 @@ impl Default for OrbConfig {
 }
 
 /// Descriptor words per keypoint (256 bits).
-pub const ORB_WORDS: usize = 8;
+pub use supermvo_features::ORB_WORDS;
 const PATCH_RADIUS: i32 = 15;
 /// Pixels kept clear of the border: the rotated BRIEF pattern and the orientation disc.
 const BORDER: i32 = 20;

@@ -350,7 +350,7 @@ impl FeatureLayout {
     }
 
     /// Writes `f` into `out` (of length [`FeatureLayout::len`]).
-    pub fn write(f: &supermvo_inference::Features, out: &mut [f32]) {
+    pub fn write(f: &supermvo_features::Features, out: &mut [f32]) {
         let n = f.len();
         for (i, k) in f.keypoints.iter().enumerate() {
             out[2 * i] = k[0];
@@ -364,7 +364,7 @@ impl FeatureLayout {
     pub fn read(
         h: &FrameHeader,
         data: &[f32],
-    ) -> Result<supermvo_inference::Features, MessageError> {
+    ) -> Result<supermvo_features::Features, MessageError> {
         let layout = FeatureLayout {
             n: h.count as usize,
             dim: h.dim as usize,
@@ -378,7 +378,7 @@ impl FeatureLayout {
             });
         }
         let n = layout.n;
-        Ok(supermvo_inference::Features {
+        Ok(supermvo_features::Features {
             keypoints: (0..n).map(|i| [data[2 * i], data[2 * i + 1]]).collect(),
             scores: data[2 * n..3 * n].to_vec(),
             descriptors: data[3 * n..].to_vec(),
@@ -639,7 +639,7 @@ pub fn create_node(name: &NodeName) -> Result<IpcNode, MessageError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use supermvo_inference::Features;
+    use supermvo_features::Features;
 
     #[test]
     fn features_round_trip_through_the_flat_layout() {

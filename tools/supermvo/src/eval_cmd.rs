@@ -203,7 +203,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         write_json(json, &results)?;
     }
     if let Some(dir) = &args.plot {
-        let files = supermvo_eval::plot::write_all(dir, &results)?;
+        let files = supermvo_plot::write_all(dir, &results)?;
         if !args.quiet {
             for f in files {
                 outln!("wrote {}", f.display());

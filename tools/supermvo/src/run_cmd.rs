@@ -196,7 +196,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
                     seq.name(), ev.report.ape.trans.rmse, ev.report.reference_length_m
                 );
                 report["eval"] = serde_json::to_value(&ev.report)?;
-                supermvo_eval::plot::write_all(&args.out, &[("supermvo".to_string(), ev)])?;
+                supermvo_plot::write_all(&args.out, &[("supermvo".to_string(), ev)])?;
             }
             Err(e) => outln!("{}: evaluation not possible: {e}", seq.name()),
         }

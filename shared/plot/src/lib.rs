@@ -9,13 +9,13 @@
 //! Text is rendered with a TrueType font read at run time: `SUPERMVO_FONT` if set, else
 //! DejaVu Sans or Liberation Sans from the usual system directories.
 
-use crate::Evaluation;
 use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 use supermvo_dataset::Trajectory;
+use supermvo_eval::Evaluation;
 
 /// Why a figure could not be written.
 #[derive(Debug, thiserror::Error)]
