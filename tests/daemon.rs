@@ -20,11 +20,12 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 use supermvo_config::Config;
 use supermvo_dataset::{GrayImage, KittiSequence};
-use supermvo_services::backend::read_records;
-use supermvo_services::supervisor::{self, SupervisorOptions};
-use supermvo_services::{features, matching, tracking};
+use supermvo_pipeline::backend::read_records;
+use supermvo_pipeline::supervisor::{self, SupervisorOptions};
+use supermvo_pipeline::{features, matching, tracking};
+use supermvo_vo::pipeline::VoPipeline;
 use supermvo_vo::stage::Stage;
-use supermvo_vo::tracker::{FrameInput, Tracker, VoPipeline};
+use supermvo_vo::tracker::{FrameInput, Tracker};
 
 static SERIAL: Mutex<()> = Mutex::new(());
 

@@ -1,3 +1,3 @@
-//! The backend stage process (see `supermvo_services::backend`); started by the supervisor.
+//! The backend stage process (see `supermvo_pipeline::backend`); started by the supervisor.
 
-supermvo_services::stage_main!(backend);
+supermvo_pipeline::stage_main!(backend);

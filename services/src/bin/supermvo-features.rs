@@ -1,3 +1,3 @@
-//! The features stage process (see `supermvo_services::features`); started by the supervisor.
+//! The features stage process (see `supermvo_pipeline::features`); started by the supervisor.
 
-supermvo_services::stage_main!(features);
+supermvo_pipeline::stage_main!(features);

@@ -1,3 +1,3 @@
-//! The ingest stage process (see `supermvo_services::ingest`); started by the supervisor.
+//! The ingest stage process (see `supermvo_pipeline::ingest`); started by the supervisor.
 
-supermvo_services::stage_main!(ingest);
+supermvo_pipeline::stage_main!(ingest);

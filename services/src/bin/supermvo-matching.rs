@@ -1,3 +1,3 @@
-//! The matching stage process (see `supermvo_services::matching`); started by the supervisor.
+//! The matching stage process (see `supermvo_pipeline::matching`); started by the supervisor.
 
-supermvo_services::stage_main!(matching);
+supermvo_pipeline::stage_main!(matching);

@@ -1,9 +1,9 @@
-//! The supervisor process (see `supermvo_services::supervisor`).
+//! The supervisor process (see `supermvo_pipeline::supervisor`).
 
 use clap::Parser;
 use std::path::PathBuf;
-use supermvo_services::common::{load_config, main_with};
-use supermvo_services::supervisor::{default_bin_dir, run, SupervisorOptions};
+use supermvo_pipeline::common::{load_config, main_with};
+use supermvo_pipeline::supervisor::{default_bin_dir, run, SupervisorOptions};
 
 /// Runs the SuPerMVO pipeline as supervised processes over iceoryx2.
 #[derive(Debug, Parser)]

@@ -1,3 +1,3 @@
-//! The tracking stage process (see `supermvo_services::tracking`); started by the supervisor.
+//! The tracking stage process (see `supermvo_pipeline::tracking`); started by the supervisor.
 
-supermvo_services::stage_main!(tracking);
+supermvo_pipeline::stage_main!(tracking);

@@ -114,7 +114,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     let (image_a, image_b, runs, threads, dump, aliked_runs) = match &args.command {
         BenchCommand::Ipc { samples } => {
             let exe = std::env::current_exe()?;
-            let rows = supermvo_services::bench_ipc::run(&exe, (*samples).max(10))?;
+            let rows = supermvo_pipeline::bench_ipc::run(&exe, (*samples).max(10))?;
             for r in &rows {
                 outln!(
                     "{:<38} {:<40} {:>8} B  p50 {:>8.1} us  p99 {:>8.1} us",
@@ -128,7 +128,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             outln!("{}", serde_json::to_string(&rows)?);
             return Ok(());
         }
-        BenchCommand::IpcEcho { name } => return supermvo_services::bench_ipc::echo(name),
+        BenchCommand::IpcEcho { name } => return supermvo_pipeline::bench_ipc::echo(name),
         BenchCommand::Tracking {
             seq_dir,
             frames,
@@ -421,8 +421,8 @@ fn matching(
         subpixel_keypoints,
         ..Default::default()
     };
-    let mut xfeat = supermvo_services::features::extractor(&pipeline)?;
-    let mut lg = supermvo_services::matching::matcher(&pipeline)?;
+    let mut xfeat = supermvo_pipeline::features::extractor(&pipeline)?;
+    let mut lg = supermvo_pipeline::matching::matcher(&pipeline)?;
     let ransac = RansacConfig {
         threshold_px,
         confidence,
@@ -500,9 +500,10 @@ fn tracking(
     repeats: usize,
     frontend: &str,
 ) -> Result<()> {
-    use supermvo_services::{features, matching, tracking::tracker_config};
+    use supermvo_pipeline::{features, matching, tracking::tracker_config};
     use supermvo_vo::loops::{LoopCloser, LoopConfig};
-    use supermvo_vo::tracker::{close_loops, FrameMeta, Tracker};
+    use supermvo_vo::pipeline::close_loops;
+    use supermvo_vo::tracker::{FrameMeta, Tracker};
     let seq = supermvo_dataset::KittiSequence::open(seq_dir)?;
     let cfg = supermvo_config::PipelineConfig {
         frontend: frontend.parse().map_err(anyhow::Error::msg)?,

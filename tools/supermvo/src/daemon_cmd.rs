@@ -3,7 +3,7 @@
 use anyhow::Result;
 use clap::Args;
 use std::time::Duration;
-use supermvo_services::monitor::{inspect, Monitor};
+use supermvo_pipeline::monitor::{inspect, Monitor};
 
 /// Arguments of `supermvo monitor`.
 #[derive(Debug, Args)]

@@ -9,12 +9,13 @@ use supermvo_config::{Config, IngestMode};
 use supermvo_dataset::{write_trajectory, GrayImage, KittiSequence, Trajectory, TrajectoryFormat};
 use supermvo_eval::{evaluate, EvalOptions};
 use supermvo_geometry::AlignmentKind;
-use supermvo_services::backend::{read_records, with_corrections};
-use supermvo_services::supervisor::{default_bin_dir, SupervisorOptions};
-use supermvo_services::{features, matching, tracking};
+use supermvo_pipeline::backend::{read_records, with_corrections};
+use supermvo_pipeline::supervisor::{default_bin_dir, SupervisorOptions};
+use supermvo_pipeline::{features, matching, tracking};
 use supermvo_vo::loops::{LoopCloser, LoopConfig};
+use supermvo_vo::pipeline::VoPipeline;
 use supermvo_vo::stage::Timed;
-use supermvo_vo::tracker::{output_pose, FrameInput, Tracker, TrackingState, VoPipeline};
+use supermvo_vo::tracker::{output_pose, FrameInput, Tracker, TrackingState};
 
 /// How the pipeline runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -330,7 +331,7 @@ fn run_multiprocess(
     cfg: &Config,
     seq: &KittiSequence,
 ) -> Result<(Trajectory, serde_json::Value)> {
-    let metrics = supermvo_services::supervisor::run(&SupervisorOptions {
+    let metrics = supermvo_pipeline::supervisor::run(&SupervisorOptions {
         config: cfg.clone(),
         seq: seq.dir.clone(),
         out: args.out.clone(),

@@ -32,10 +32,10 @@ fn consecutive_kitti_frames_give_many_epipolar_inliers_and_beat_orb() {
         ..Default::default()
     };
     let mut aliked =
-        supermvo_services::features::extractor(&cfg(Frontend::AlikedLightglue)).unwrap();
-    let mut glue = supermvo_services::matching::matcher(&cfg(Frontend::AlikedLightglue)).unwrap();
-    let mut orb = supermvo_services::features::extractor(&cfg(Frontend::Orb)).unwrap();
-    let mut orb_match = supermvo_services::matching::matcher(&cfg(Frontend::Orb)).unwrap();
+        supermvo_pipeline::features::extractor(&cfg(Frontend::AlikedLightglue)).unwrap();
+    let mut glue = supermvo_pipeline::matching::matcher(&cfg(Frontend::AlikedLightglue)).unwrap();
+    let mut orb = supermvo_pipeline::features::extractor(&cfg(Frontend::Orb)).unwrap();
+    let mut orb_match = supermvo_pipeline::matching::matcher(&cfg(Frontend::Orb)).unwrap();
     let mut full = LightGlue::new(
         &models::model_path("lightglue"),
         "lightglue",

@@ -96,6 +96,11 @@ fn libraries_do_not_pull_in_what_they_do_not_use() {
             "configuration reads options; figures live in supermvo-plot",
         ),
         (
+            "supermvo",
+            "supermvo-services",
+            "the CLI and the stage processes share supermvo-pipeline; the CLI starts the stage binaries, it does not link their crate",
+        ),
+        (
             "supermvo-features",
             "ort",
             "the feature types are shared by every stage",

@@ -17,9 +17,8 @@ use supermvo_messages::{
     now_ns, BackendState, FrameHeader, MatchEntry, MessageError, PoseMsg, StageKind, Status, Topic,
 };
 use supermvo_vo::loops::{LoopCloser, LoopConfig};
-use supermvo_vo::tracker::{
-    close_loops, FrameMeta, FrameOutput, Tracker, TrackerConfig, TrackingState,
-};
+use supermvo_vo::pipeline::close_loops;
+use supermvo_vo::tracker::{FrameMeta, FrameOutput, Tracker, TrackerConfig, TrackingState};
 
 /// The tracker configuration the daemon and `supermvo run --mode inprocess` both use.
 pub fn tracker_config(cfg: &PipelineConfig) -> TrackerConfig {

@@ -1,0 +1,218 @@
+//! The map the tracker builds and reads: landmarks with every keyframe observation and the
+//! descriptor of the latest, the keyframes' poses, and the pending tracks (keyframe
+//! observations of points without enough parallax for a landmark yet). Keyframes are known
+//! by id, the index of their pose; a map segment starts where the last map was dropped.
+//!
+//! Frames: keyframe poses are `T_cam_world`; landmark positions are in the world frame.
+
+use std::collections::BTreeMap;
+use supermvo_geometry::essential::{triangulate_checked, Triangulated};
+use supermvo_geometry::{Mat3, Vec3};
+
+/// A map point with every keyframe observation `(keyframe id, bearing)` of it and the
+/// descriptor of its latest observation (for the local-map search).
+pub(crate) struct Landmark {
+    /// Position in the world frame.
+    pub(crate) p: Vec3,
+    /// `(keyframe id, bearing)` of every observation.
+    pub(crate) obs: Vec<(usize, Vec3)>,
+    /// Descriptor of the latest observation.
+    pub(crate) desc: Vec<f32>,
+}
+
+/// Landmarks, pending tracks and keyframe poses (see the module docs).
+pub(crate) struct Map {
+    /// The local map by landmark id: landmarks leave it once none of the last
+    /// `local_map_keyframes` keyframes observes them, so memory stays flat on long runs.
+    pub(crate) landmarks: BTreeMap<usize, Landmark>,
+    next_landmark: usize,
+    /// Pending tracks by id: keyframe observations of a point that has no landmark yet.
+    pub(crate) tracks: BTreeMap<usize, Vec<(usize, Vec3)>>,
+    pub(crate) next_track: usize,
+    /// `T_cam_world` of every keyframe, by id (refined by the local BA).
+    pub(crate) keyframe_poses: Vec<(Mat3, Vec3)>,
+    /// Id of the first keyframe of the current map: a loss starts a new map (its scale is
+    /// only carried by the median depth), which the local BA and the local-map search keep
+    /// apart from the old one.
+    pub(crate) segment_start: usize,
+    /// Focal length (pixels) that turns the 2 px triangulation gate into bearings.
+    focal: f64,
+}
+
+impl Map {
+    /// An empty map for a camera of focal length `focal` pixels.
+    pub(crate) fn new(focal: f64) -> Self {
+        Self {
+            landmarks: BTreeMap::new(),
+            next_landmark: 0,
+            tracks: BTreeMap::new(),
+            next_track: 0,
+            keyframe_poses: Vec::new(),
+            segment_start: 0,
+            focal,
+        }
+    }
+
+    /// Adds a landmark with its keyframe observations `(keyframe id, bearing)` and the
+    /// descriptor of the latest; returns its id.
+    pub(crate) fn add_landmark(&mut self, p: Vec3, obs: Vec<(usize, Vec3)>, desc: &[f32]) -> usize {
+        let id = self.next_landmark;
+        self.next_landmark += 1;
+        let desc = desc.to_vec();
+        self.landmarks.insert(id, Landmark { p, obs, desc });
+        id
+    }
+    /// Adds keyframe `kf_id`'s observation `(bearing, descriptor)` to landmark `id` and
+    /// re-triangulates it from all its observations when each still reprojects within 2 px.
+    pub(crate) fn observe_landmark(&mut self, id: usize, kf_id: usize, b: Vec3, desc: &[f32]) {
+        let Some(lm) = self.landmarks.get_mut(&id) else {
+            return;
+        };
+        lm.obs.push((kf_id, b));
+        lm.desc.clear();
+        lm.desc.extend_from_slice(desc);
+        let fit = self
+            .landmarks
+            .get(&id)
+            .and_then(|lm| self.triangulate_observations(&lm.obs));
+        if let (Some(tri), Some(lm)) = (fit, self.landmarks.get_mut(&id)) {
+            lm.p = tri.point;
+        }
+    }
+    /// Adds keyframe `kf_id`'s observation of landmark `id` that tracking did not accept
+    /// (see `TrackerConfig::reobserve_max_px`) when the landmark, re-triangulated from all its
+    /// observations and this one, reprojects within 2 px in every view; then the landmark
+    /// takes the new position. Otherwise nothing changes and `false` is returned.
+    pub(crate) fn reobserve_landmark(
+        &mut self,
+        id: usize,
+        kf_id: usize,
+        b: Vec3,
+        desc: &[f32],
+    ) -> bool {
+        let Some(mut obs) = self.landmarks.get(&id).map(|lm| lm.obs.clone()) else {
+            return false;
+        };
+        obs.push((kf_id, b));
+        let (Some(tri), Some(lm)) = (
+            self.triangulate_observations(&obs),
+            self.landmarks.get_mut(&id),
+        ) else {
+            return false;
+        };
+        lm.p = tri.point;
+        lm.obs = obs;
+        lm.desc.clear();
+        lm.desc.extend_from_slice(desc);
+        true
+    }
+    /// The point that keyframe observations `(keyframe id, bearing)` triangulate to when it
+    /// lies in front of every view and reprojects within 2 px in each (`None` otherwise, or
+    /// when a keyframe is unknown).
+    pub(crate) fn triangulate_observations(&self, obs: &[(usize, Vec3)]) -> Option<Triangulated> {
+        let views = obs
+            .iter()
+            .map(|(k, b)| self.keyframe_poses.get(*k).map(|&(r, t)| (r, t, *b)))
+            .collect::<Option<Vec<(Mat3, Vec3, Vec3)>>>()?;
+        triangulate_checked(&views, 2.0 / self.focal)
+    }
+    /// The world point of a track's keyframe observations when it lies in front of every
+    /// view, reprojects within 2 px in each and has the configured parallax between the
+    /// first and the last view.
+    pub(crate) fn triangulate_track(
+        &self,
+        obs: &[(usize, Vec3)],
+        min_parallax_deg: f64,
+    ) -> Option<Vec3> {
+        self.triangulate_observations(obs)
+            .filter(|tri| tri.parallax_deg > min_parallax_deg)
+            .map(|tri| tri.point)
+    }
+    /// Registers a keyframe pose and returns its id.
+    pub(crate) fn new_keyframe_id(&mut self, r: Mat3, t: Vec3) -> usize {
+        self.keyframe_poses.push((r, t));
+        self.keyframe_poses.len() - 1
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
+    use super::*;
+
+    const F: f64 = 700.0;
+
+    /// `T_cam_world` of an unrotated camera centred at `c`.
+    fn at(c: Vec3) -> (Mat3, Vec3) {
+        (Mat3::identity(), -c)
+    }
+
+    /// Bearing of world point `p` seen from the camera centred at `c`, moved by `(du, dv)` px.
+    fn seen(p: &Vec3, c: &Vec3, (du, dv): (f64, f64)) -> Vec3 {
+        let q = p - c;
+        Vec3::new(q.x / q.z + du / F, q.y / q.z + dv / F, 1.0)
+    }
+
+    /// A tracker with keyframes 0 and 1 (0.5 m apart sideways, 1.4 degrees of parallax at
+    /// 20 m) holding one landmark triangulated from them with 0.7 px of noise in keyframe 1,
+    /// and keyframe 2 another 2.5 m on; returns it, the landmark id and the true point.
+    fn short_baseline_landmark() -> (Map, usize, Vec3) {
+        let mut tr = Map::new(F);
+        let centres = [
+            Vec3::zeros(),
+            Vec3::new(0.5, 0.0, 0.0),
+            Vec3::new(3.0, 0.0, 0.0),
+        ];
+        for c in centres {
+            let (r, t) = at(c);
+            tr.new_keyframe_id(r, t);
+        }
+        let truth = Vec3::new(1.0, 0.5, 20.0);
+        let obs = vec![
+            (0, seen(&truth, &centres[0], (0.0, 0.0))),
+            (1, seen(&truth, &centres[1], (0.7, 0.0))),
+        ];
+        let views: Vec<_> = obs
+            .iter()
+            .map(|(k, b)| (tr.keyframe_poses[*k].0, tr.keyframe_poses[*k].1, *b))
+            .collect();
+        let p = triangulate_checked(&views, 2.0 / F).unwrap().point;
+        let id = tr.add_landmark(p, obs, &[0.0; 4]);
+        (tr, id, truth)
+    }
+
+    fn reprojection_px(tr: &Map, id: usize, kf: usize, b: &Vec3) -> f64 {
+        let (r, t) = tr.keyframe_poses[kf];
+        supermvo_geometry::pnp::reprojection_sq(&r, &t, &tr.landmarks[&id].p, b).sqrt() * F
+    }
+
+    #[test]
+    fn a_wider_baseline_corrects_a_landmark_that_tracking_rejected() {
+        let (mut tr, id, truth) = short_baseline_landmark();
+        let b = seen(&truth, &Vec3::new(3.0, 0.0, 0.0), (0.0, 0.0));
+        let before = (tr.landmarks[&id].p - truth).norm();
+        // the short baseline's depth error puts the landmark beyond the 2 px PnP threshold
+        // from keyframe 2, within the 6 px re-observation gate
+        let miss = reprojection_px(&tr, id, 2, &b);
+        assert!(miss > 2.0 && miss < 6.0, "reprojection {miss} px");
+        assert!(tr.reobserve_landmark(id, 2, b, &[1.0; 4]));
+        let after = (tr.landmarks[&id].p - truth).norm();
+        assert!(after < 0.25 * before, "error {before} m -> {after} m");
+        assert_eq!(tr.landmarks[&id].obs.len(), 3);
+        assert_eq!(tr.landmarks[&id].desc, vec![1.0; 4]);
+    }
+
+    #[test]
+    fn a_match_inconsistent_with_the_other_views_is_not_added() {
+        let (mut tr, id, truth) = short_baseline_landmark();
+        let p = tr.landmarks[&id].p;
+        // 5 px off across the epipolar line: no point fits all three views within 2 px
+        let b = seen(&truth, &Vec3::new(3.0, 0.0, 0.0), (0.0, 5.0));
+        assert!(!tr.reobserve_landmark(id, 2, b, &[1.0; 4]));
+        assert_eq!(tr.landmarks[&id].p, p);
+        assert_eq!(tr.landmarks[&id].obs.len(), 2);
+        // an unknown keyframe or landmark changes nothing either
+        assert!(!tr.reobserve_landmark(id, 7, b, &[1.0; 4]));
+        assert!(!tr.reobserve_landmark(id + 1, 2, b, &[1.0; 4]));
+    }
+}

@@ -1,0 +1,89 @@
+//! The in-process pipeline: extractor, matcher, tracker and loop closer one after the other,
+//! and the loop closer's feedback to the tracker that the daemon uses too.
+
+use crate::stage::Stage;
+use crate::tracker::{output_pose, FrameInput, FrameMeta, FrameOutput, Tracker};
+use supermvo_inference::{Extractor, InferenceError, Matcher};
+
+/// Extractor, matcher and tracker in one process, one after the other: the reference
+/// implementation the multi-process daemon must reproduce bit for bit.
+pub struct VoPipeline {
+    extractor: Box<dyn Extractor + Send>,
+    matcher: Box<dyn Matcher + Send>,
+    tracker: Tracker,
+    loops: Option<crate::loops::LoopCloser>,
+}
+
+impl std::fmt::Debug for VoPipeline {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "VoPipeline({:?}, {:?})", self.tracker, self.loops)
+    }
+}
+
+impl VoPipeline {
+    /// A pipeline over the given front end; with a loop closer, keyframes go to it and its
+    /// corrections go back to the tracker.
+    pub fn new(
+        extractor: Box<dyn Extractor + Send>,
+        matcher: Box<dyn Matcher + Send>,
+        tracker: Tracker,
+        loops: Option<crate::loops::LoopCloser>,
+    ) -> Self {
+        Self {
+            extractor,
+            matcher,
+            tracker,
+            loops,
+        }
+    }
+
+    /// The loop closer, when there is one.
+    pub fn loop_closer(&self) -> Option<&crate::loops::LoopCloser> {
+        self.loops.as_ref()
+    }
+}
+
+/// Hands one tracked frame to the loop closer and applies the correction it returns to the
+/// tracker: the feedback of the back end, shared by the in-process pipeline and the daemon.
+pub fn close_loops(
+    loops: &mut crate::loops::LoopCloser,
+    tracker: &mut Tracker,
+    out: &FrameOutput,
+) -> Option<crate::loops::Correction> {
+    let pose = output_pose(out)?;
+    if !out.keyframe {
+        loops.add_frame(out.index, &pose);
+        return None;
+    }
+    let (_, features) = tracker.reference()?;
+    let correction = loops.add_keyframe(out.index, &pose, features)?;
+    tracker.apply_correction(&correction.sim3);
+    Some(correction)
+}
+
+impl Stage for VoPipeline {
+    type Input = FrameInput;
+    type Output = FrameOutput;
+    type Error = InferenceError;
+
+    fn name(&self) -> &'static str {
+        "vo"
+    }
+
+    fn process(&mut self, input: FrameInput) -> Result<FrameOutput, InferenceError> {
+        let cur = self.extractor.extract(&input.image)?;
+        let matches = match self.tracker.reference() {
+            Some((_, reference)) => Some(self.matcher.match_features(reference, &cur)?),
+            None => None,
+        };
+        let meta = FrameMeta {
+            index: input.index,
+            stamp: input.stamp,
+        };
+        let out = self.tracker.step(meta, cur, matches.as_ref());
+        if let Some(loops) = self.loops.as_mut() {
+            close_loops(loops, &mut self.tracker, &out);
+        }
+        Ok(out)
+    }
+}

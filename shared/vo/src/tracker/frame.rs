@@ -1,0 +1,104 @@
+//! What the tracker takes and returns per frame, and the conversions between keypoints,
+//! bearings and the `T_world_cam` poses it reports.
+
+use supermvo_dataset::{Calibration, GrayImage};
+use supermvo_geometry::{Mat3, Pose, Vec3};
+
+/// Tracking state of a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TrackingState {
+    /// Waiting for enough parallax to initialise.
+    Initializing,
+    /// Pose estimated.
+    Tracking,
+    /// Tracking failed on this frame; the tracker tries the next frame against the map it
+    /// has (after a blind frame: relocalisation) or re-initialises.
+    Lost,
+}
+
+/// One input frame.
+#[derive(Debug, Clone)]
+pub struct FrameInput {
+    /// Frame index.
+    pub index: usize,
+    /// Timestamp, seconds.
+    pub stamp: f64,
+    /// The image.
+    pub image: GrayImage,
+}
+
+/// The tracker's result for one frame.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct FrameOutput {
+    /// Frame index.
+    pub index: usize,
+    /// Timestamp, seconds.
+    pub stamp: f64,
+    /// State.
+    pub state: TrackingState,
+    /// `T_world_cam` as a 3x4 row-major matrix, when estimated.
+    pub pose: Option<[f64; 12]>,
+    /// Keypoints detected.
+    pub keypoints: usize,
+    /// Matches to the reference keyframe.
+    pub matches: usize,
+    /// Inliers of the pose estimate.
+    pub inliers: usize,
+    /// Whether this frame became a keyframe.
+    pub keyframe: bool,
+    /// Landmarks in the map.
+    pub landmarks: usize,
+    /// Frame index of the reference keyframe the next frame is matched against.
+    pub reference: Option<usize>,
+    /// Scale of the map (median landmark depth at initialisation), once initialised.
+    pub scale: Option<f64>,
+}
+
+/// Index and time of a frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameMeta {
+    /// Frame index.
+    pub index: usize,
+    /// Timestamp, seconds.
+    pub stamp: f64,
+}
+
+/// The pose of an output as a [`Pose`].
+pub fn output_pose(o: &FrameOutput) -> Option<Pose> {
+    o.pose.map(|p| {
+        Pose::new(
+            Mat3::new(p[0], p[1], p[2], p[4], p[5], p[6], p[8], p[9], p[10]),
+            Vec3::new(p[3], p[7], p[11]),
+        )
+    })
+}
+
+pub(crate) fn bearing(c: &Calibration, p: &[f32; 2]) -> Vec3 {
+    Vec3::new(
+        (p[0] as f64 - c.cx) / c.fx,
+        (p[1] as f64 - c.cy) / c.fy,
+        1.0,
+    )
+}
+
+/// `T_cam_world = (r, t)` as `T_world_cam`, a 3x4 row-major matrix.
+pub(crate) fn pose_array(r: &Mat3, t: &Vec3) -> [f64; 12] {
+    // T_world_cam = (R^T, -R^T t)
+    let rw = r.transpose();
+    let tw = -(rw * t);
+    [
+        rw[(0, 0)],
+        rw[(0, 1)],
+        rw[(0, 2)],
+        tw.x,
+        rw[(1, 0)],
+        rw[(1, 1)],
+        rw[(1, 2)],
+        tw.y,
+        rw[(2, 0)],
+        rw[(2, 1)],
+        rw[(2, 2)],
+        tw.z,
+    ]
+}

@@ -1,0 +1,171 @@
+//! Two-view initialisation: once the matches to the reference move far enough, the 5-point
+//! essential matrix gives the relative pose and the inliers triangulate the first landmarks;
+//! the scale is a unit baseline at the first map and the last map's median depth after.
+
+use super::frame::bearing;
+use super::{FrameMeta, FrameOutput, Tracker, TrackingState};
+use supermvo_geometry::essential::{find_essential, recover_pose, triangulate_checked};
+use supermvo_geometry::{Mat3, Vec3};
+use supermvo_inference::{Features, Matches};
+
+impl Tracker {
+    pub(crate) fn initialise(
+        &mut self,
+        input: &FrameMeta,
+        cur: Features,
+        m: Option<&Matches>,
+    ) -> FrameOutput {
+        let Some(kf) = self.keyframe.take() else {
+            // first frame (or first after a loss): becomes the reference at the last pose
+            let (r, t) = self.last_pose;
+            let out = self.output(
+                input,
+                TrackingState::Initializing,
+                Some((r, t)),
+                cur.len(),
+                (0, 0),
+                true,
+            );
+            self.set_reference(input.index, r, t, cur);
+            return out;
+        };
+        let Some(m) = m else {
+            // no matches to the reference: start again from this frame
+            return self.lost(input, cur, 0);
+        };
+        let mut disp: Vec<f64> = m
+            .pairs
+            .iter()
+            .map(|&(a, b)| {
+                let (p, q) = (kf.features.keypoints[a], cur.keypoints[b]);
+                ((p[0] - q[0]) as f64).hypot((p[1] - q[1]) as f64)
+            })
+            .collect();
+        disp.sort_by(f64::total_cmp);
+        let parallax = disp.get(disp.len() / 2).copied().unwrap_or(0.0);
+        tracing::debug!(
+            frame = input.index,
+            matches = m.pairs.len(),
+            median_displacement_px = parallax,
+            "initialising"
+        );
+        if m.pairs.len() < self.cfg.min_init_landmarks {
+            // too few matches left for this reference ever to initialise (the view has moved
+            // on, e.g. after a failed attempt in a turn): start again from this frame, unless
+            // the frame is blind
+            let state = TrackingState::Initializing;
+            return self.unusable_reference(input, kf, cur, m.pairs.len(), state);
+        }
+        if parallax < self.cfg.min_parallax_px {
+            return self.keep_reference(
+                input,
+                kf,
+                TrackingState::Initializing,
+                cur.len(),
+                (m.pairs.len(), 0),
+            );
+        }
+        let x1: Vec<Vec3> = m
+            .pairs
+            .iter()
+            .map(|&(a, _)| bearing(&self.calib, &kf.features.keypoints[a]))
+            .collect();
+        let x2: Vec<Vec3> = m
+            .pairs
+            .iter()
+            .map(|&(_, b)| bearing(&self.calib, &cur.keypoints[b]))
+            .collect();
+        let Some(est) = find_essential(&x1, &x2, self.focal(), &self.cfg.ransac) else {
+            return self.keep_reference(
+                input,
+                kf,
+                TrackingState::Initializing,
+                cur.len(),
+                (m.pairs.len(), 0),
+            );
+        };
+        let (r_rel, t_rel, _) = recover_pose(&est.e, &x1, &x2, &est.inliers, 1e3);
+        // scale: unit baseline at the first initialisation; afterwards keep the map's scale
+        // by scaling the baseline so the median depth matches the last map's median depth
+        let inl: Vec<(usize, usize)> = m
+            .pairs
+            .iter()
+            .zip(&est.inliers)
+            .filter(|(_, &b)| b)
+            .map(|(p, _)| *p)
+            .collect();
+        let identity = (&Mat3::identity(), &Vec3::zeros());
+        let unit =
+            self.triangulate_pairs(identity, &kf.features.keypoints, &cur, &r_rel, &t_rel, &inl);
+        if unit.len() < self.cfg.min_init_landmarks {
+            return self.keep_reference(
+                input,
+                kf,
+                TrackingState::Initializing,
+                cur.len(),
+                (m.pairs.len(), unit.len()),
+            );
+        }
+        let mut depths: Vec<f64> = unit.iter().map(|(_, _, p)| p.z).collect();
+        depths.sort_by(f64::total_cmp);
+        let median = depths[depths.len() / 2];
+        let s = match self.scale {
+            Some(target) => target / median,
+            None => {
+                self.scale = Some(median);
+                1.0
+            }
+        };
+        // current camera: T_cur_world = T_cur_kf * T_kf_world
+        let t_rel = t_rel * s;
+        let r = r_rel * kf.r;
+        let t = r_rel * kf.t + t_rel;
+        let cur_id = self.map.new_keyframe_id(r, t);
+        let (keypoints, landmark) = (cur.len(), vec![None; cur.len()]);
+        let init = (&inl[..], self.cfg.min_init_parallax_deg);
+        self.insert_keyframe(&kf, cur, (input.index, cur_id), (r, t), landmark, init);
+        let counts = (m.pairs.len(), est.inlier_count());
+        self.output(
+            input,
+            TrackingState::Tracking,
+            Some((r, t)),
+            keypoints,
+            counts,
+            true,
+        )
+    }
+
+    /// Triangulates matched keypoints between a keyframe and the current frame (both
+    /// `T_cam_world`), returning world points for pairs that are in front of both cameras,
+    /// reproject within 2 px and have the configured parallax.
+    pub(crate) fn triangulate_pairs(
+        &self,
+        (kf_r, kf_t): (&Mat3, &Vec3),
+        kf_keypoints: &[[f32; 2]],
+        cur: &Features,
+        r: &Mat3,
+        t: &Vec3,
+        pairs: &[(usize, usize)],
+    ) -> Vec<(usize, usize, Vec3)> {
+        // relative pose T_cur_kf = T_cur_world * T_world_kf
+        let r_rel = r * kf_r.transpose();
+        let t_rel = t - r_rel * kf_t;
+        let thr = 2.0 / self.focal();
+        let mut out = Vec::new();
+        for &(a, b) in pairs {
+            let (x1, x2) = (
+                bearing(&self.calib, &kf_keypoints[a]),
+                bearing(&self.calib, &cur.keypoints[b]),
+            );
+            let views = [(Mat3::identity(), Vec3::zeros(), x1), (r_rel, t_rel, x2)];
+            let Some(tri) = triangulate_checked(&views, thr) else {
+                continue;
+            };
+            if tri.parallax_deg > self.cfg.min_init_parallax_deg {
+                // world point: p_world = R_kf^T (p_kf - t_kf)
+                out.push((a, b, kf_r.transpose() * (tri.point - kf_t)));
+            }
+        }
+        out
+    }
+}

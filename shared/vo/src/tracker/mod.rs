@@ -1,0 +1,452 @@
+//! The monocular tracker: two-view initialisation; PnP tracking against the reference
+//! keyframe's landmarks followed by a search of the local map by projection (or, when the
+//! keyframe's landmarks fail, a constant-velocity prediction); keyframes whose unmatched
+//! matches extend pending tracks until they triangulate with enough parallax; a local
+//! bundle adjustment with older keyframes as fixed anchors; after a blind frame (too few
+//! keypoints) the next frame is tracked against the map kept for it (relocalisation), and
+//! any other failure re-initialises.
+//!
+//! The tracker's own matching (the local-map search) is a descriptor comparison within a
+//! few pixels of a projection, done here because it needs the map; the networks' matches to
+//! the reference keyframe still come from outside.
+//!
+//! Frames: `T_cam_world` maps world points into the camera; outputs carry `T_world_cam`.
+//! The world frame is the first keyframe's camera; the scale is fixed by the first
+//! two-view initialisation (unit baseline) and carried by the landmarks afterwards.
+//! A local bundle adjustment refines the last keyframes and their landmarks.
+//!
+//! The tracker neither detects nor matches: each step takes the frame's features and their
+//! matches against the current reference keyframe ([`Tracker::reference`]). In process,
+//! [`crate::pipeline::VoPipeline`] runs extractor, matcher and tracker one after the other; in the daemon the
+//! features and the matches arrive from their own processes, and the results are identical
+//! because the tracker sees exactly the same numbers.
+//!
+//! Where each part lives: the map it builds ([`crate::map`]), the settings ([`config`]), the
+//! per-frame types ([`frame`]), two-view initialisation ([`initialisation`]), tracking a
+//! frame and the keyframe decision ([`tracking`]), the local-map search by projection
+//! ([`map_search`]) and the local bundle adjustment ([`local_ba`]); this file holds the
+//! state machine between them (initialising, tracking, blind frames, starting over).
+
+mod config;
+mod frame;
+mod initialisation;
+mod local_ba;
+mod map_search;
+mod tracking;
+
+pub use config::TrackerConfig;
+pub use frame::{output_pose, FrameInput, FrameMeta, FrameOutput, TrackingState};
+pub use local_ba::BaStats;
+
+use crate::map::Map;
+use frame::{bearing, pose_array};
+use supermvo_dataset::Calibration;
+use supermvo_geometry::{Mat3, Pose, Vec3};
+use supermvo_inference::{Features, Matches};
+
+/// The reference keyframe: its features, and per keypoint its landmark or pending track.
+struct Keyframe {
+    id: usize,
+    /// Frame index of the keyframe.
+    frame: usize,
+    r: Mat3,
+    t: Vec3,
+    features: Features,
+    landmark: Vec<Option<usize>>,
+    /// Per keypoint, the pending track (observations still without enough parallax) it
+    /// continues, if any.
+    track: Vec<Option<usize>>,
+}
+
+/// The tracker (see module docs).
+pub struct Tracker {
+    calib: Calibration,
+    cfg: TrackerConfig,
+    /// Landmarks, pending tracks and keyframe poses.
+    map: Map,
+    keyframe: Option<Keyframe>,
+    frames_since_keyframe: usize,
+    /// Rotation and translation of `T_cam_world` of the reference used to re-initialise
+    /// after a loss (the last tracked pose), so the trajectory continues in one frame.
+    last_pose: (Mat3, Vec3),
+    /// Motion between the last two tracked frames, `T_last_prev` (rotation, translation):
+    /// the constant-velocity prediction used when the keyframe matches fail.
+    velocity: Option<(Mat3, Vec3)>,
+    /// Blind frames in a row for which the map was kept (relocalisation).
+    lost_streak: usize,
+    /// The last local BA, until taken.
+    last_ba: Option<BaStats>,
+    /// Scale of the map (median landmark depth at initialisation), to carry across
+    /// re-initialisations.
+    scale: Option<f64>,
+}
+
+impl std::fmt::Debug for Tracker {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Tracker({} landmarks)", self.map.landmarks.len())
+    }
+}
+
+impl Tracker {
+    /// A tracker for the given left-camera calibration.
+    pub fn new(calib: Calibration, cfg: TrackerConfig) -> Self {
+        Self {
+            calib,
+            cfg,
+            map: Map::new(0.5 * (calib.fx + calib.fy)),
+            keyframe: None,
+            frames_since_keyframe: 0,
+            last_pose: (Mat3::identity(), Vec3::zeros()),
+            velocity: None,
+            lost_streak: 0,
+            last_ba: None,
+            scale: None,
+        }
+    }
+
+    /// The pose of the next frame under constant velocity (`None` until two frames were
+    /// tracked in a row), across the frames that failed since the last tracked one.
+    fn predict(&self) -> Option<(Mat3, Vec3)> {
+        let (rv, tv) = self.velocity?;
+        let (mut r, mut t) = self.last_pose;
+        for _ in 0..=self.lost_streak {
+            (r, t) = (rv * r, rv * t + tv);
+        }
+        Some((r, t))
+    }
+
+    fn focal(&self) -> f64 {
+        0.5 * (self.calib.fx + self.calib.fy)
+    }
+
+    /// The reference keyframe the next frame must be matched against: its frame index and
+    /// features (`None` before the first frame and right after a loss).
+    pub fn reference(&self) -> Option<(usize, &Features)> {
+        self.keyframe.as_ref().map(|k| (k.frame, &k.features))
+    }
+
+    /// Restarts from `T_world_cam` with the map scale of an earlier run (a restarted tracking
+    /// process continues the trajectory the back end recorded). Clears map and reference.
+    pub fn restore(&mut self, t_world_cam: &Pose, scale: Option<f64>) {
+        let r = t_world_cam.r.transpose();
+        let t = -(r * t_world_cam.t);
+        self.last_pose = (r, t);
+        self.velocity = None;
+        self.lost_streak = 0;
+        self.scale = scale;
+        self.keyframe = None;
+        self.map.landmarks.clear();
+        self.map.tracks.clear();
+        self.map.keyframe_poses.clear();
+        self.map.segment_start = 0;
+        self.frames_since_keyframe = 0;
+    }
+
+    /// Moves the whole map (landmarks, keyframe poses, the reference and the last pose) by
+    /// the similarity `x -> s R x + t`: the loop closer's correction of the world frame, so
+    /// that tracking continues in the corrected world at the corrected scale.
+    pub fn apply_correction(&mut self, c: &supermvo_optim::lie::Sim3) {
+        let move_pose = |(r, t): (Mat3, Vec3)| {
+            let centre = -(r.transpose() * t);
+            let centre = c.s * (c.r * centre) + c.t;
+            let r2 = r * c.r.transpose();
+            (r2, -(r2 * centre))
+        };
+        for p in self.map.keyframe_poses.iter_mut() {
+            *p = move_pose(*p);
+        }
+        for lm in self.map.landmarks.values_mut() {
+            lm.p = c.s * (c.r * lm.p) + c.t;
+        }
+        if let Some(kf) = self.keyframe.as_mut() {
+            (kf.r, kf.t) = move_pose((kf.r, kf.t));
+        }
+        self.last_pose = move_pose(self.last_pose);
+        if let Some(v) = self.velocity.as_mut() {
+            v.1 *= c.s;
+        }
+        self.scale = self.scale.map(|s| s * c.s);
+    }
+
+    fn output(
+        &self,
+        input: &FrameMeta,
+        state: TrackingState,
+        pose: Option<(Mat3, Vec3)>,
+        keypoints: usize,
+        (matches, inliers): (usize, usize),
+        keyframe: bool,
+    ) -> FrameOutput {
+        FrameOutput {
+            index: input.index,
+            stamp: input.stamp,
+            state,
+            pose: pose.map(|(r, t)| pose_array(&r, &t)),
+            keypoints,
+            matches,
+            inliers,
+            keyframe,
+            landmarks: self.map.landmarks.len(),
+            reference: None,
+            scale: None,
+        }
+    }
+
+    /// Makes `cur` the reference keyframe at `(r, t)`, without landmarks (initialisation
+    /// starts from it).
+    fn set_reference(&mut self, frame: usize, r: Mat3, t: Vec3, cur: Features) {
+        let id = self.map.new_keyframe_id(r, t);
+        let (landmark, track) = (vec![None; cur.len()], vec![None; cur.len()]);
+        self.keyframe = Some(Keyframe {
+            id,
+            frame,
+            r,
+            t,
+            features: cur,
+            landmark,
+            track,
+        });
+    }
+
+    /// Makes `cur` (frame index `frame`, registered as keyframe `cur_id` at `(r, t)`) the new
+    /// keyframe. Each match in `candidates` to `kf` without a landmark extends the pending
+    /// track of its keypoint in `kf` (or starts one there); a track becomes a landmark once
+    /// its observations triangulate with enough parallax, otherwise it waits for the next
+    /// keyframe, so slow or forward motion still builds landmarks from a wider baseline.
+    /// Then the local BA runs.
+    fn insert_keyframe(
+        &mut self,
+        kf: &Keyframe,
+        cur: Features,
+        (frame, cur_id): (usize, usize),
+        (r, t): (Mat3, Vec3),
+        mut landmark: Vec<Option<usize>>,
+        (candidates, min_parallax_deg): (&[(usize, usize)], f64),
+    ) {
+        let mut track = vec![None; cur.len()];
+        for &(a, b) in candidates {
+            if landmark[b].is_some() || kf.landmark[a].is_some() {
+                continue;
+            }
+            let (id, mut obs) = match kf.track[a].and_then(|id| self.map.tracks.remove_entry(&id)) {
+                Some(entry) => entry,
+                None => {
+                    self.map.next_track += 1;
+                    let first = (kf.id, bearing(&self.calib, &kf.features.keypoints[a]));
+                    (self.map.next_track - 1, vec![first])
+                }
+            };
+            obs.push((cur_id, bearing(&self.calib, &cur.keypoints[b])));
+            match self.map.triangulate_track(&obs, min_parallax_deg) {
+                Some(p) => landmark[b] = Some(self.map.add_landmark(p, obs, cur.descriptor(b))),
+                None => {
+                    self.map.tracks.insert(id, obs);
+                    track[b] = Some(id);
+                }
+            }
+        }
+        self.last_pose = (r, t);
+        self.keyframe = Some(Keyframe {
+            id: cur_id,
+            frame,
+            r,
+            t,
+            features: cur,
+            landmark,
+            track,
+        });
+        self.frames_since_keyframe = 0;
+        self.local_ba();
+        self.prune_map();
+    }
+
+    /// Drops landmarks that none of the last `local_map_keyframes` keyframes observes, so
+    /// memory stays flat on long runs; the rest form the local map that the search by
+    /// projection can find again (after a pan, a stop, an occlusion).
+    fn prune_map(&mut self) {
+        let n = self.map.keyframe_poses.len();
+        let keep_from = n.saturating_sub(self.cfg.local_map_keyframes.max(1));
+        self.map
+            .landmarks
+            .retain(|_, lm| lm.obs.iter().any(|(k, _)| *k >= keep_from));
+        // a track not continued by the newest keyframe is over
+        let newest = n.saturating_sub(1);
+        self.map
+            .tracks
+            .retain(|_, obs| obs.last().is_some_and(|(k, _)| *k >= newest));
+    }
+
+    /// This frame has no pose and the reference `kf` stays: not enough for the two-view
+    /// initialisation yet (`Initializing`), or a blind frame while tracking (`Lost`).
+    fn keep_reference(
+        &mut self,
+        input: &FrameMeta,
+        kf: Keyframe,
+        state: TrackingState,
+        keypoints: usize,
+        counts: (usize, usize),
+    ) -> FrameOutput {
+        let out = self.output(input, state, None, keypoints, counts, false);
+        self.keyframe = Some(kf);
+        out
+    }
+
+    /// A frame that could not use the reference `kf` (`matches` to it), reported as `state`:
+    /// `Initializing` while the reference waits to initialise, `Lost` when tracking against
+    /// it failed. A blind frame (fewer keypoints than tracking needs: black, washed out,
+    /// covered) says nothing about the reference, which stays: while initialising, and while
+    /// tracking for at most `relocalisation_frames` blind frames in a row, with its map, so
+    /// that the next frame relocalises on it at the map's scale. Any other frame starts over
+    /// from itself at the last known pose.
+    fn unusable_reference(
+        &mut self,
+        input: &FrameMeta,
+        kf: Keyframe,
+        cur: Features,
+        matches: usize,
+        state: TrackingState,
+    ) -> FrameOutput {
+        let blind = cur.len() < self.cfg.min_tracked;
+        let initialising = state == TrackingState::Initializing;
+        if blind && (initialising || self.lost_streak < self.cfg.relocalisation_frames) {
+            if !initialising {
+                self.lost_streak += 1;
+                tracing::debug!(
+                    frame = input.index,
+                    keypoints = cur.len(),
+                    streak = self.lost_streak,
+                    "blind frame: keeping the map to relocalise"
+                );
+            }
+            return self.keep_reference(input, kf, state, cur.len(), (matches, 0));
+        }
+        tracing::debug!(
+            frame = input.index,
+            reference = kf.frame,
+            matches,
+            ?state,
+            "starting over from this frame"
+        );
+        self.start_over(input, cur, matches, state)
+    }
+
+    /// Lost: re-initialise from this frame at the last known pose.
+    fn lost(&mut self, input: &FrameMeta, cur: Features, matches: usize) -> FrameOutput {
+        self.start_over(input, cur, matches, TrackingState::Lost)
+    }
+
+    /// Drops the map and makes this frame the reference at the last known pose, in a new
+    /// segment (the next frames initialise against it); the frame itself has no pose and is
+    /// reported in `state`.
+    fn start_over(
+        &mut self,
+        input: &FrameMeta,
+        cur: Features,
+        matches: usize,
+        state: TrackingState,
+    ) -> FrameOutput {
+        let out = self.output(input, state, None, cur.len(), (matches, 0), false);
+        let (r, t) = self.last_pose;
+        self.velocity = None;
+        self.lost_streak = 0;
+        self.map.landmarks.clear();
+        self.map.tracks.clear();
+        self.map.segment_start = self.map.keyframe_poses.len();
+        self.set_reference(input.index, r, t, cur);
+        self.frames_since_keyframe = 0;
+        out
+    }
+
+    /// Processes one frame: its features and their matches against [`Tracker::reference`]
+    /// (`a` indexes the reference, `b` this frame). `matches` is ignored when there is no
+    /// reference; when there is one and `matches` is `None` (the matcher could not provide
+    /// them) the frame counts as lost and the tracker starts again from it.
+    pub fn step(
+        &mut self,
+        meta: FrameMeta,
+        cur: Features,
+        matches: Option<&Matches>,
+    ) -> FrameOutput {
+        let initialised = self
+            .keyframe
+            .as_ref()
+            .is_some_and(|k| k.landmark.iter().any(|l| l.is_some()));
+        let mut out = if initialised {
+            self.track(&meta, cur, matches)
+        } else {
+            self.initialise(&meta, cur, matches)
+        };
+        out.reference = self.keyframe.as_ref().map(|k| k.frame);
+        out.scale = self.scale;
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
+    use super::*;
+
+    const F: f64 = 700.0;
+
+    /// A camera of focal length `F` with principal point `(cx, cy)`.
+    fn calibration(cx: f64, cy: f64) -> Calibration {
+        Calibration {
+            fx: F,
+            fy: F,
+            cx,
+            cy,
+        }
+    }
+
+    fn features(n: usize, shift: f32) -> Features {
+        Features {
+            keypoints: (0..n)
+                .map(|i| [(i % 40) as f32 * 30.0 + shift, (i / 40) as f32 * 30.0])
+                .collect(),
+            scores: vec![1.0; n],
+            descriptors: vec![0.0; n * 4],
+            dim: 4,
+            image_size: (1241, 376),
+        }
+    }
+
+    /// A reference that too few matches reach (fewer than `min_init_landmarks`) can never
+    /// initialise: the frame becomes the new reference instead of the tracker waiting on the
+    /// old one for the rest of the run (as ORB on KITTI 03 did after a failed attempt in
+    /// the turn).
+    #[test]
+    fn initialisation_restarts_when_the_reference_loses_its_matches() {
+        let mut tr = Tracker::new(calibration(620.0, 188.0), TrackerConfig::default());
+        let meta = |index| FrameMeta {
+            index,
+            stamp: index as f64 * 0.1,
+        };
+        tr.step(meta(0), features(400, 0.0), None);
+        assert_eq!(tr.reference().map(|r| r.0), Some(0));
+        // many matches, too little parallax: keep waiting on frame 0
+        let matches = |n: usize| Matches {
+            pairs: (0..n).map(|i| (i, i)).collect(),
+            scores: vec![1.0; n],
+        };
+        let many = matches(300);
+        let out = tr.step(meta(1), features(400, 2.0), Some(&many));
+        assert_eq!(out.state, TrackingState::Initializing);
+        assert_eq!(tr.reference().map(|r| r.0), Some(0));
+        // fewer matches than an initialisation needs: frame 2 becomes the reference
+        let few = matches(50);
+        let out = tr.step(meta(2), features(400, 40.0), Some(&few));
+        assert_eq!(out.state, TrackingState::Initializing);
+        assert!(out.pose.is_none());
+        assert_eq!(tr.reference().map(|r| r.0), Some(2));
+        // a blind frame (no keypoints, so no matches) says nothing about the reference: it
+        // stays
+        let none = matches(0);
+        let out = tr.step(meta(3), features(0, 0.0), Some(&none));
+        assert_eq!(out.state, TrackingState::Initializing);
+        assert_eq!(tr.reference().map(|r| r.0), Some(2));
+        // a frame with keypoints that do not reach the reference does replace it
+        tr.step(meta(4), features(400, 0.0), Some(&none));
+        assert_eq!(tr.reference().map(|r| r.0), Some(4));
+    }
+}
