@@ -139,6 +139,10 @@ pub struct PipelineConfig {
     pub top_k: usize,
     /// ONNX Runtime intra-op threads per network, [1, 64].
     pub threads: usize,
+    /// ONNX Runtime's intra-op threads spin (busy-wait) between calls. Off: extraction and
+    /// matching alternate on the same cores, and a spinning idle session takes them from the
+    /// running one (`tools/bench_spinning.py`).
+    pub thread_spinning: bool,
     /// Where the networks run: "cpu" or "cuda".
     pub device: Device,
     /// Feature-extraction worker processes taking alternate frames, [1, 8].
@@ -200,6 +204,7 @@ impl Default for PipelineConfig {
             speed: 1.0,
             top_k: 1024,
             threads: 2,
+            thread_spinning: false,
             device: Device::Cpu,
             features_workers: 1,
             ba_window: 6,

@@ -21,6 +21,10 @@ pub struct AlikedConfig {
     pub detection_threshold: f32,
     /// ONNX Runtime intra-op threads.
     pub threads: usize,
+    /// ONNX Runtime's intra-op threads spin (busy-wait) between calls instead of sleeping:
+    /// faster for a network that runs alone, slower where another network or stage needs the
+    /// same cores (see `runtime::open_session_on`). Off by default.
+    pub spin: bool,
     /// Where the network runs.
     pub device: Device,
 }
@@ -31,6 +35,7 @@ impl Default for AlikedConfig {
             top_k: 2048,
             detection_threshold: 0.2,
             threads: 2,
+            spin: false,
             device: Device::Cpu,
         }
     }
@@ -50,8 +55,14 @@ impl Aliked {
     /// Opens `model` (an `aliked.onnx` exported by `supermvo models fetch aliked`).
     pub fn new(model: &Path, cfg: AlikedConfig) -> Result<Self, InferenceError> {
         crate::runtime::init_for(None, cfg.device)?;
-        let (session, _) =
-            open_session_on(model, "aliked", cfg.threads, cfg.device, &INPUTS, &OUTPUTS)?;
+        let (session, _) = open_session_on(
+            model,
+            "aliked",
+            (cfg.threads, cfg.spin),
+            cfg.device,
+            &INPUTS,
+            &OUTPUTS,
+        )?;
         Ok(Self { session, cfg })
     }
 }

@@ -22,6 +22,10 @@ pub struct LightGlueConfig {
     pub mutual: bool,
     /// ONNX Runtime intra-op threads.
     pub threads: usize,
+    /// ONNX Runtime's intra-op threads spin (busy-wait) between calls instead of sleeping:
+    /// faster for a network that runs alone, slower where another network or stage needs the
+    /// same cores (see `runtime::open_session_on`). Off by default.
+    pub spin: bool,
     /// Point pruning as LightGlue's `width_confidence`: after each layer, keypoints whose
     /// matchability is not above `1 - width_confidence` are dropped. 0.95 is the reference
     /// LighterGlue's setting; -1 disables pruning. Ignored by models exported without it.
@@ -41,6 +45,7 @@ impl Default for LightGlueConfig {
             threshold: 0.1,
             mutual: true,
             threads: 2,
+            spin: false,
             width_confidence: 0.95,
             depth_confidence: -1.0,
             device: Device::Cpu,
@@ -143,8 +148,14 @@ impl LightGlue {
     /// Opens a matcher model; `name` is used in messages (`lighterglue`, ...).
     pub fn new(model: &Path, name: &str, cfg: LightGlueConfig) -> Result<Self, InferenceError> {
         crate::runtime::init_for(None, cfg.device)?;
-        let (session, device) =
-            open_session_on(model, name, cfg.threads, cfg.device, &INPUTS, &OUTPUTS)?;
+        let (session, device) = open_session_on(
+            model,
+            name,
+            (cfg.threads, cfg.spin),
+            cfg.device,
+            &INPUTS,
+            &OUTPUTS,
+        )?;
         let has = |names: &[&str], actual: &[&str]| -> Vec<bool> {
             names.iter().map(|n| actual.contains(n)).collect()
         };

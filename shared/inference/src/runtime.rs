@@ -122,7 +122,7 @@ pub fn open_session(
     inputs: &[&str],
     outputs: &[&str],
 ) -> Result<ort::session::Session, InferenceError> {
-    open_session_on(path, name, threads, Device::Cpu, inputs, outputs).map(|(s, _)| s)
+    open_session_on(path, name, (threads, false), Device::Cpu, inputs, outputs).map(|(s, _)| s)
 }
 
 /// Registers the CUDA execution provider on `builder`, or says why it cannot be used.
@@ -164,12 +164,18 @@ fn loaded_library() -> PathBuf {
 }
 
 /// Opens an ONNX model on `device` (CUDA falls back to the CPU, with a warning naming the
-/// reason, where it cannot be used), checking its input and output names. Returns the
-/// session and the device it runs on.
+/// reason, where it cannot be used) with `threads` intra-op threads that spin between calls
+/// when `spin` is set, checking its input and output names. Returns the session and the
+/// device it runs on.
+///
+/// Spinning keeps a session's threads busy-waiting for a while after each call. Where two
+/// networks alternate on the same cores (extraction then matching, in one process or in two
+/// stage processes) the idle session's spinning threads take the cores the running one needs:
+/// `tools/bench_spinning.py` measures both settings.
 pub fn open_session_on(
     path: &Path,
     name: &str,
-    threads: usize,
+    (threads, spin): (usize, bool),
     device: Device,
     inputs: &[&str],
     outputs: &[&str],
@@ -206,6 +212,8 @@ pub fn open_session_on(
         .map_err(|e| corrupt(e.into()))?
         .with_inter_threads(1)
         .map_err(|e| corrupt(e.into()))?
+        .with_intra_op_spinning(spin)
+        .map_err(|e| corrupt(e.into()))?
         // Subnormal floats (the far tails of the attention softmax) are 10-50x slower on
         // x86; flushing them to zero halved LighterGlue's time with the same matches.
         .with_flush_to_zero()
@@ -225,8 +233,9 @@ pub fn open_session_on(
     let session = builder.commit_from_file(path).map_err(corrupt)?;
     match used {
         Device::Cpu => tracing::info!(
-            "{name}: running on the CPU ({} intra-op threads)",
-            threads.max(1)
+            "{name}: running on the CPU ({} intra-op threads, spinning {})",
+            threads.max(1),
+            if spin { "on" } else { "off" }
         ),
         Device::Cuda => tracing::info!("{name}: running on CUDA (device 0)"),
     }

@@ -17,6 +17,10 @@ pub struct SuperGlueConfig {
     pub threshold: f32,
     /// ONNX Runtime intra-op threads.
     pub threads: usize,
+    /// ONNX Runtime's intra-op threads spin (busy-wait) between calls instead of sleeping:
+    /// faster for a network that runs alone, slower where another network or stage needs the
+    /// same cores (see `runtime::open_session_on`). Off by default.
+    pub spin: bool,
     /// Where the network runs.
     pub device: Device,
 }
@@ -26,6 +30,7 @@ impl Default for SuperGlueConfig {
         Self {
             threshold: 0.2,
             threads: 2,
+            spin: false,
             device: Device::Cpu,
         }
     }
@@ -58,7 +63,7 @@ impl SuperGlue {
         let (session, _) = open_session_on(
             model,
             "superglue",
-            cfg.threads,
+            (cfg.threads, cfg.spin),
             cfg.device,
             &INPUTS,
             &OUTPUTS,

@@ -26,6 +26,10 @@ pub struct SuperPointConfig {
     pub border: usize,
     /// ONNX Runtime intra-op threads.
     pub threads: usize,
+    /// ONNX Runtime's intra-op threads spin (busy-wait) between calls instead of sleeping:
+    /// faster for a network that runs alone, slower where another network or stage needs the
+    /// same cores (see `runtime::open_session_on`). Off by default.
+    pub spin: bool,
     /// Where the network runs.
     pub device: Device,
 }
@@ -38,6 +42,7 @@ impl Default for SuperPointConfig {
             nms_radius: 4,
             border: 4,
             threads: 2,
+            spin: false,
             device: Device::Cpu,
         }
     }
@@ -60,7 +65,7 @@ impl SuperPoint {
         let (session, _) = open_session_on(
             model,
             "superpoint",
-            cfg.threads,
+            (cfg.threads, cfg.spin),
             cfg.device,
             &INPUTS,
             &OUTPUTS,

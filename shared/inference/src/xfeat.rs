@@ -30,6 +30,10 @@ pub struct XFeatConfig {
     pub detection_threshold: f32,
     /// ONNX Runtime intra-op threads.
     pub threads: usize,
+    /// ONNX Runtime's intra-op threads spin (busy-wait) between calls instead of sleeping:
+    /// faster for a network that runs alone, slower where another network or stage needs the
+    /// same cores (see `runtime::open_session_on`). Off by default.
+    pub spin: bool,
     /// Where the network runs (CUDA falls back to the CPU, with a warning, when unusable).
     pub device: Device,
     /// Sub-pixel keypoints: each coordinate moves to the vertex of the parabola through the
@@ -44,6 +48,7 @@ impl Default for XFeatConfig {
             top_k: 2048,
             detection_threshold: 0.05,
             threads: 2,
+            spin: false,
             device: Device::Cpu,
             subpixel: false,
         }
@@ -79,8 +84,14 @@ impl XFeat {
     /// Opens `model` (an `xfeat.onnx` exported by `supermvo models fetch xfeat`).
     pub fn new(model: &Path, cfg: XFeatConfig) -> Result<Self, InferenceError> {
         crate::runtime::init_for(None, cfg.device)?;
-        let (session, device) =
-            open_session_on(model, "xfeat", cfg.threads, cfg.device, &INPUTS, &OUTPUTS)?;
+        let (session, device) = open_session_on(
+            model,
+            "xfeat",
+            (cfg.threads, cfg.spin),
+            cfg.device,
+            &INPUTS,
+            &OUTPUTS,
+        )?;
         Ok(Self {
             session,
             cfg,

@@ -24,6 +24,7 @@ pub fn extractor(cfg: &PipelineConfig) -> Result<Box<dyn Extractor + Send>> {
             XFeatConfig {
                 top_k: cfg.top_k,
                 threads: cfg.threads,
+                spin: cfg.thread_spinning,
                 device: crate::common::device(cfg.device),
                 subpixel: cfg.subpixel_keypoints,
                 ..Default::default()
@@ -34,6 +35,7 @@ pub fn extractor(cfg: &PipelineConfig) -> Result<Box<dyn Extractor + Send>> {
             SuperPointConfig {
                 top_k: cfg.top_k,
                 threads: cfg.threads,
+                spin: cfg.thread_spinning,
                 device: crate::common::device(cfg.device),
                 ..Default::default()
             },
@@ -43,6 +45,7 @@ pub fn extractor(cfg: &PipelineConfig) -> Result<Box<dyn Extractor + Send>> {
             AlikedConfig {
                 top_k: cfg.top_k,
                 threads: cfg.threads,
+                spin: cfg.thread_spinning,
                 device: crate::common::device(cfg.device),
                 ..Default::default()
             },

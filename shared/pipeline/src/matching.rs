@@ -28,6 +28,7 @@ pub fn matcher(cfg: &PipelineConfig) -> Result<Box<dyn Matcher + Send>> {
             "lighterglue",
             LightGlueConfig {
                 threads: cfg.threads,
+                spin: cfg.thread_spinning,
                 device: crate::common::device(cfg.device),
                 width_confidence: cfg.width_confidence as f32,
                 depth_confidence: cfg.depth_confidence as f32,
@@ -39,6 +40,7 @@ pub fn matcher(cfg: &PipelineConfig) -> Result<Box<dyn Matcher + Send>> {
             "lightglue",
             LightGlueConfig {
                 threads: cfg.threads,
+                spin: cfg.thread_spinning,
                 device: crate::common::device(cfg.device),
                 // LightGlue's own defaults for its adaptive width and depth
                 width_confidence: 0.99,
@@ -50,6 +52,7 @@ pub fn matcher(cfg: &PipelineConfig) -> Result<Box<dyn Matcher + Send>> {
             &models::model_path("superglue"),
             SuperGlueConfig {
                 threads: cfg.threads,
+                spin: cfg.thread_spinning,
                 device: crate::common::device(cfg.device),
                 ..Default::default()
             },
