@@ -17,6 +17,6 @@ pub use error::DatasetError;
 pub use image::GrayImage;
 pub use kitti::{read_times, Calibration, KittiSequence};
 pub use trajectory::{
-    read_trajectory, write_trajectory, PoseLines, StampedPose, Trajectory, TrajectoryFormat,
-    ROTATION_TOLERANCE,
+    hold_last_pose, read_trajectory, write_trajectory, PoseLines, StampedPose, Trajectory,
+    TrajectoryFormat, ROTATION_TOLERANCE,
 };

@@ -465,3 +465,55 @@ mod tests {
         assert!(err.to_string().contains("file is empty"), "{err}");
     }
 }
+
+/// The rows of a KITTI-format trajectory (one pose per frame of the sequence, no
+/// timestamps) for a run that may not have posed every frame, and which frames those were.
+///
+/// The rule: a frame without a pose repeats the pose of the nearest earlier posed frame
+/// (frames before the first posed one take the first pose), as a stopped camera would; the
+/// devkit and `supermvo eval --format kitti` then compare every frame, and an unposed frame
+/// counts with the error of standing still. `None` when no frame has a pose.
+pub fn hold_last_pose(poses: &[Option<Pose>]) -> Option<(Vec<Pose>, Vec<usize>)> {
+    let first = poses.iter().flatten().next()?;
+    let mut last = *first;
+    let mut rows = Vec::with_capacity(poses.len());
+    let mut unposed = Vec::new();
+    for (i, p) in poses.iter().enumerate() {
+        match p {
+            Some(p) => last = *p,
+            None => unposed.push(i),
+        }
+        rows.push(last);
+    }
+    Some((rows, unposed))
+}
+
+#[cfg(test)]
+mod hold_last_pose_tests {
+    use super::*;
+
+    fn at(x: f64) -> Pose {
+        Pose::new(Mat3::identity(), Vec3::new(x, 0.0, 0.0))
+    }
+
+    #[test]
+    fn unposed_frames_repeat_the_last_pose_and_are_listed() {
+        let poses = [
+            None,
+            Some(at(1.0)),
+            Some(at(2.0)),
+            None,
+            None,
+            Some(at(5.0)),
+            None,
+        ];
+        let Some((rows, unposed)) = hold_last_pose(&poses) else {
+            unreachable!("poses were given")
+        };
+        let xs: Vec<f64> = rows.iter().map(|p| p.t.x).collect();
+        assert_eq!(xs, [1.0, 1.0, 2.0, 2.0, 2.0, 5.0, 5.0]);
+        assert_eq!(unposed, [0, 3, 4, 6]);
+        assert!(hold_last_pose(&[None, None]).is_none());
+        assert!(hold_last_pose(&[]).is_none());
+    }
+}

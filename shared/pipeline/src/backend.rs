@@ -12,7 +12,8 @@ use anyhow::{Context, Result};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
-use supermvo_dataset::{write_trajectory, Trajectory, TrajectoryFormat};
+use supermvo_dataset::{hold_last_pose, write_trajectory, Trajectory, TrajectoryFormat};
+use supermvo_geometry::Pose;
 use supermvo_messages::{
     now_ns, BackendState, FrameHeader, MessageError, PoseMsg, StageKind, Status, Topic,
 };
@@ -131,33 +132,57 @@ pub fn with_corrections(out: &Path, records: &[Record]) -> Vec<Record> {
         .collect()
 }
 
-/// Writes the trajectory of the records with a pose: TUM always, KITTI when every frame of
-/// the sequence has a pose.
-pub fn write_outputs(out: &Path, records: &[Record]) -> Result<()> {
-    let records = with_corrections(out, records);
-    let est: Vec<&Record> = records.iter().filter(|r| r.pose.is_some()).collect();
+/// Writes the trajectory of the records (loop-corrected where the tracking stage closed
+/// loops): see [`write_trajectories`].
+pub fn write_outputs(out: &Path, records: &[Record]) -> Result<Vec<usize>> {
+    let frames: Vec<(f64, Option<Pose>)> = with_corrections(out, records)
+        .iter()
+        .filter(|r| r.status != "end")
+        .map(|r| (r.stamp, r.pose.as_ref().map(pose_of)))
+        .collect();
+    write_trajectories(out, &frames)
+}
+
+/// Writes a run's trajectory for every frame `(stamp, pose if posed)` in order:
+/// `trajectory.tum.txt` with the posed frames and their stamps, and `trajectory.kitti.txt`
+/// with one row per frame, unposed frames holding the last pose
+/// ([`supermvo_dataset::hold_last_pose`]); returns the unposed frames' positions. With no
+/// pose at all neither file is left behind (an older run's files in the same folder are
+/// removed).
+pub fn write_trajectories(out: &Path, frames: &[(f64, Option<Pose>)]) -> Result<Vec<usize>> {
+    let (tum, kitti) = (
+        out.join("trajectory.tum.txt"),
+        out.join("trajectory.kitti.txt"),
+    );
+    let poses: Vec<Option<Pose>> = frames.iter().map(|f| f.1).collect();
+    let Some((rows, unposed)) = hold_last_pose(&poses) else {
+        for f in [&tum, &kitti] {
+            match std::fs::remove_file(f) {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                    return Err(e).with_context(|| format!("removing {}", f.display()))
+                }
+                _ => {}
+            }
+        }
+        return Ok((0..frames.len()).collect());
+    };
+    let posed: Vec<(f64, Pose)> = frames
+        .iter()
+        .filter_map(|(t, p)| p.map(|p| (*t, p)))
+        .collect();
     let traj = Trajectory {
-        stamps: Some(est.iter().map(|r| r.stamp).collect()),
-        poses: est
-            .iter()
-            .filter_map(|r| r.pose.as_ref().map(pose_of))
-            .collect(),
+        stamps: Some(posed.iter().map(|e| e.0).collect()),
+        poses: posed.iter().map(|e| e.1).collect(),
         quaternions: None,
     };
-    write_trajectory(
-        &out.join("trajectory.tum.txt"),
-        TrajectoryFormat::Tum,
-        &traj,
-    )?;
-    let frames = records.iter().filter(|r| r.status != "end").count();
-    if !est.is_empty() && est.len() == frames {
-        write_trajectory(
-            &out.join("trajectory.kitti.txt"),
-            TrajectoryFormat::Kitti,
-            &traj,
-        )?;
-    }
-    Ok(())
+    write_trajectory(&tum, TrajectoryFormat::Tum, &traj)?;
+    let all = Trajectory {
+        stamps: None,
+        poses: rows,
+        quaternions: None,
+    };
+    write_trajectory(&kitti, TrajectoryFormat::Kitti, &all)?;
+    Ok(unposed)
 }
 
 /// The record on disk; in memory only what a restarted tracker needs (memory stays flat

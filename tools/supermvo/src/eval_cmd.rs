@@ -4,7 +4,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use std::path::{Path, PathBuf};
 use supermvo_config::Config;
-use supermvo_dataset::{read_trajectory, TrajectoryFormat};
+use supermvo_dataset::{read_times, read_trajectory, TrajectoryFormat};
 use supermvo_eval::{evaluate, DeltaUnit, Evaluation, Stats};
 use supermvo_geometry::AlignmentKind;
 
@@ -41,6 +41,15 @@ pub struct EvalArgs {
     /// File format. With `euroc`, the ground truth is EuRoC CSV and estimates are TUM.
     #[arg(long, value_enum, default_value = "kitti")]
     format: FormatArg,
+    /// Format of the estimates when it differs from the ground truth's (for example `tum`
+    /// against KITTI ground truth with `--gt-times`) [default: as --format; tum with euroc].
+    #[arg(long, value_enum)]
+    est_format: Option<FormatArg>,
+    /// Timestamps of the KITTI ground truth, one a line (a KITTI `times.txt`): the poses are
+    /// then associated with timestamped estimates (TUM) by time, so a run that did not pose
+    /// every frame can be evaluated on the frames it posed.
+    #[arg(long)]
+    gt_times: Option<PathBuf>,
     /// Alignment of each estimate onto the ground truth [default: from config, "none"].
     #[arg(long, value_enum)]
     align: Option<AlignArg>,
@@ -177,12 +186,34 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     ec.validate().context("invalid evaluation options")?;
     let opts = ec.options();
 
-    let (gt_format, est_format) = match args.format {
-        FormatArg::Kitti => (TrajectoryFormat::Kitti, TrajectoryFormat::Kitti),
-        FormatArg::Tum => (TrajectoryFormat::Tum, TrajectoryFormat::Tum),
-        FormatArg::Euroc => (TrajectoryFormat::Euroc, TrajectoryFormat::Tum),
+    let format = |f: FormatArg| match f {
+        FormatArg::Kitti => TrajectoryFormat::Kitti,
+        FormatArg::Tum => TrajectoryFormat::Tum,
+        FormatArg::Euroc => TrajectoryFormat::Euroc,
     };
-    let gt = read_trajectory(&args.gt, gt_format).context("reading ground truth")?;
+    let gt_format = format(args.format);
+    let est_format = match (args.est_format, args.format) {
+        (Some(f), _) => format(f),
+        (None, FormatArg::Euroc) => TrajectoryFormat::Tum,
+        (None, f) => format(f),
+    };
+    let mut gt = read_trajectory(&args.gt, gt_format).context("reading ground truth")?;
+    if let Some(times) = &args.gt_times {
+        if gt_format != TrajectoryFormat::Kitti {
+            bail!("--gt-times gives a KITTI ground truth its timestamps; --format {gt_format} files carry their own");
+        }
+        let stamps = read_times(times).context("reading --gt-times")?;
+        if stamps.len() != gt.poses.len() {
+            bail!(
+                "--gt-times {} has {} timestamps but --gt {} has {} poses; give the times.txt of the same sequence",
+                times.display(),
+                stamps.len(),
+                args.gt.display(),
+                gt.poses.len()
+            );
+        }
+        gt.stamps = Some(stamps);
+    }
     let mut results: Vec<(String, Evaluation)> = Vec::new();
     for spec in &args.est {
         let (label, path) = parse_est(spec);

@@ -4,12 +4,12 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use supermvo_config::{Config, IngestMode};
-use supermvo_dataset::{write_trajectory, GrayImage, KittiSequence, Trajectory, TrajectoryFormat};
+use supermvo_dataset::{GrayImage, KittiSequence, Trajectory};
 use supermvo_eval::{evaluate, EvalOptions};
 use supermvo_geometry::AlignmentKind;
-use supermvo_pipeline::backend::{read_records, with_corrections};
+use supermvo_pipeline::backend::{read_records, with_corrections, write_trajectories};
 use supermvo_pipeline::supervisor::{default_bin_dir, SupervisorOptions};
 use supermvo_pipeline::{features, matching, tracking};
 use supermvo_vo::loops::{LoopCloser, LoopConfig};
@@ -178,35 +178,69 @@ pub fn run(args: &RunArgs) -> Result<()> {
     };
     let est = traj.poses.len();
     let lost = report["lost"].as_u64().unwrap_or(0);
+    let frames = report["frames"].as_u64().map_or(n, |f| f as usize);
+    let unposed = report["unposed_frames"].as_array().map_or(0, |u| u.len());
+    outln!(
+        "{}: {est} of {frames} frames posed, {lost} lost{}",
+        seq.name(),
+        if unposed > 0 && est > 0 {
+            format!(
+                "; trajectory.kitti.txt repeats the last pose for the {unposed} unposed (listed in report.json)"
+            )
+        } else {
+            String::new()
+        }
+    );
     let gt_path = args.gt.clone().or_else(|| seq.default_ground_truth());
-    if let (Some(gt_path), 1) = (gt_path, cfg.pipeline.loops) {
-        let mut gt = seq.read_ground_truth(&gt_path)?;
-        gt.poses.truncate(n);
-        if let Some(s) = gt.stamps.as_mut() {
-            s.truncate(n);
-        }
-        let opts = EvalOptions {
-            align: AlignmentKind::Sim3,
-            t_max_diff: 0.001,
-            ..Default::default()
-        };
-        match evaluate(&gt, &traj, &opts) {
-            Ok(ev) => {
-                outln!(
-                    "{}: {est} of {n} frames estimated, {lost} lost; APE RMSE after Sim(3) {:.3} m over {:.1} m of path",
-                    seq.name(), ev.report.ape.trans.rmse, ev.report.reference_length_m
-                );
-                report["eval"] = serde_json::to_value(&ev.report)?;
-                supermvo_plot::write_all(&args.out, &[("supermvo".to_string(), ev)])?;
+    match (gt_path, cfg.pipeline.loops) {
+        (Some(gt_path), 1) if est > 0 => {
+            let mut gt = seq.read_ground_truth(&gt_path)?;
+            gt.poses.truncate(n);
+            if let Some(s) = gt.stamps.as_mut() {
+                s.truncate(n);
             }
-            Err(e) => outln!("{}: evaluation not possible: {e}", seq.name()),
+            let opts = EvalOptions {
+                align: AlignmentKind::Sim3,
+                t_max_diff: 0.001,
+                ..Default::default()
+            };
+            match evaluate(&gt, &traj, &opts) {
+                Ok(ev) => {
+                    outln!(
+                        "{}: APE RMSE after Sim(3) {:.3} m over {:.1} m of path (ground truth {})",
+                        seq.name(),
+                        ev.report.ape.trans.rmse,
+                        ev.report.reference_length_m,
+                        gt_path.display()
+                    );
+                    report["eval"] = serde_json::to_value(&ev.report)?;
+                    supermvo_plot::write_all(&args.out, &[("supermvo".to_string(), ev)])?;
+                }
+                Err(e) => outln!("{}: evaluation not possible: {e}", seq.name()),
+            }
         }
+        (Some(_), 1) => {}
+        (Some(_), _) => outln!("{}: not evaluated (the sequence was replayed)", seq.name()),
+        (None, _) => outln!(
+            "{}: not evaluated: no ground truth at {} (give --gt POSES.txt)",
+            seq.name(),
+            seq.dir
+                .join("../../poses")
+                .join(format!("{}.txt", seq.name()))
+                .display()
+        ),
     }
     std::fs::write(
         args.out.join("report.json"),
         serde_json::to_string_pretty(&report)?,
     )?;
     outln!("results in {}", args.out.display());
+    if est == 0 || est * 10 < frames {
+        bail!(
+            "only {est} of {frames} frames were posed: check that calib.txt belongs to these images, that consecutive images overlap, and that they are not blank; what was estimated is in {}",
+            args.out.display()
+        );
+    }
     Ok(())
 }
 
@@ -272,16 +306,12 @@ fn run_inprocess(
     }
     bar.finish_and_clear();
     let closer = vo.inner().loop_closer();
-    let est: Vec<_> = match closer {
-        // Every estimated frame, moved by the loop corrections.
-        Some(c) => c
-            .trajectory()
-            .into_iter()
-            .map(|(i, p)| (seq.times[i], p))
-            .collect(),
+    // every frame's pose (moved by the loop corrections when loops are closed), by index
+    let posed: std::collections::BTreeMap<usize, supermvo_geometry::Pose> = match closer {
+        Some(c) => c.trajectory().into_iter().collect(),
         None => outputs
             .iter()
-            .filter_map(|o| output_pose(o).map(|p| (o.stamp, p)))
+            .filter_map(|o| output_pose(o).map(|p| (o.index, p)))
             .collect(),
     };
     let loops = closer.map(|c| c.loops()).unwrap_or_default();
@@ -290,12 +320,15 @@ fn run_inprocess(
     } else if closer.is_some() {
         outln!("loops closed: {}", loops.len());
     }
+    let frames: Vec<(f64, Option<supermvo_geometry::Pose>)> = (0..n)
+        .map(|i| (seq.times[i], posed.get(&i).copied()))
+        .collect();
+    let unposed = write_trajectories(&args.out, &frames)?;
     let traj = Trajectory {
-        stamps: Some(est.iter().map(|e| e.0).collect()),
-        poses: est.iter().map(|e| e.1).collect(),
+        stamps: Some(posed.keys().map(|&i| seq.times[i]).collect()),
+        poses: posed.values().copied().collect(),
         quaternions: None,
     };
-    write_outputs(&args.out, &traj, est.len() == n)?;
     let lost = outputs
         .iter()
         .filter(|o| o.state == TrackingState::Lost)
@@ -306,24 +339,13 @@ fn run_inprocess(
     );
     let report = serde_json::json!({
         "mode": "inprocess",
-        "sequence": seq.dir, "frames": n, "estimated": est.len(), "lost": lost,
+        "sequence": seq.dir, "frames": n, "estimated": traj.poses.len(), "lost": lost,
+        "unposed_frames": unposed,
         "timing_ms": {"frame_median": vo.median_ms(), "per_frame": vo.durations_ms()},
         "loops": loops,
         "frames_detail": outputs,
     });
     Ok((traj, report))
-}
-
-fn write_outputs(out: &Path, traj: &Trajectory, complete: bool) -> Result<()> {
-    write_trajectory(&out.join("trajectory.tum.txt"), TrajectoryFormat::Tum, traj)?;
-    if complete {
-        write_trajectory(
-            &out.join("trajectory.kitti.txt"),
-            TrajectoryFormat::Kitti,
-            traj,
-        )?;
-    }
-    Ok(())
 }
 
 fn run_multiprocess(
@@ -349,6 +371,13 @@ fn run_multiprocess(
         quaternions: None,
     };
     let lost = records.iter().filter(|r| r.state == 2).count();
+    let unposed: Vec<usize> = records
+        .iter()
+        .filter(|r| r.status != "end")
+        .enumerate()
+        .filter(|(_, r)| r.pose.is_none())
+        .map(|(i, _)| i)
+        .collect();
     let e2e = &metrics.end_to_end_ms;
     outln!(
         "{} frames in {:.1} s ({:.1} fps); capture to pose p50 {:.0} ms, p99 {:.0} ms; {} restarts",
@@ -371,6 +400,7 @@ fn run_multiprocess(
         "loops": loops,
         "sequence": seq.dir, "frames": records.iter().filter(|r| r.status != "end").count(),
         "estimated": est.len(), "lost": lost,
+        "unposed_frames": unposed,
         "metrics": metrics,
         "frames_detail": records,
     });

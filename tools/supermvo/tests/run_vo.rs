@@ -172,6 +172,23 @@ fn black_frame_no_motion_and_unreadable_frame_are_states_not_failures() {
         .count();
     assert!(posed_before >= 8, "{frames:?}");
     assert!(traj.lines().count() >= posed_before);
+    // the KITTI trajectory has a row for every frame, the unposed ones (the black frame, the
+    // unreadable one) holding the last pose, and the report lists them
+    let kitti = std::fs::read_to_string(out.join("trajectory.kitti.txt")).unwrap();
+    assert_eq!(kitti.lines().count(), plan.len());
+    let unposed: Vec<u64> = report["unposed_frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap())
+        .collect();
+    assert!(
+        unposed.contains(&12) && unposed.contains(&18),
+        "{unposed:?}"
+    );
+    assert_eq!(unposed.len() + traj.lines().count(), plan.len());
+    let rows: Vec<&str> = kitti.lines().collect();
+    assert_eq!(rows[12], rows[11], "the black frame holds frame 11's pose");
     // the daemon (one process per stage) relocalises the same way, bit for bit
     let daemon = tmp.path().join("daemon");
     run("multiprocess", &daemon);
@@ -179,6 +196,65 @@ fn black_frame_no_motion_and_unreadable_frame_are_states_not_failures() {
         std::fs::read_to_string(daemon.join("trajectory.tum.txt")).unwrap(),
         traj
     );
+    assert_eq!(
+        std::fs::read_to_string(daemon.join("trajectory.kitti.txt")).unwrap(),
+        kitti
+    );
+}
+
+/// A run that poses almost nothing (here 20 black frames: only the first, the reference,
+/// has a pose) writes what it has, replacing an older run's files in a reused output
+/// folder, says how many frames it posed and what to check, and exits non-zero.
+#[test]
+fn a_run_that_poses_almost_nothing_fails_after_writing_what_it_has() {
+    let Some(src) = common::shared_data("kitti/sequences/00") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("sequences/00");
+    std::fs::create_dir_all(seq.join("image_0")).unwrap();
+    std::fs::copy(src.join("calib.txt"), seq.join("calib.txt")).unwrap();
+    let mut times = String::new();
+    for i in 0..20 {
+        image::GrayImage::new(1241, 376)
+            .save(seq.join(format!("image_0/{i:06}.png")))
+            .unwrap();
+        times.push_str(&format!("{:.6}\n", i as f64 * 0.1));
+    }
+    std::fs::write(seq.join("times.txt"), times).unwrap();
+    let out = tmp.path().join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("trajectory.kitti.txt"), "an older run's file\n").unwrap();
+    let (seq, out_s) = (seq.to_str().unwrap(), out.to_str().unwrap());
+    let r = common::supermvo(&[
+        "run",
+        seq,
+        "--mode",
+        "inprocess",
+        "--frontend",
+        "orb",
+        "-q",
+        "--out",
+        out_s,
+    ]);
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&r.stdout),
+        String::from_utf8_lossy(&r.stderr),
+    );
+    assert!(!r.status.success(), "{stdout}{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(
+        stderr.contains("only 1 of 20 frames were posed") && stderr.contains("calib.txt"),
+        "{stderr}"
+    );
+    assert!(stdout.contains("1 of 20 frames posed"), "{stdout}");
+    assert!(
+        stdout.contains("not evaluated: no ground truth"),
+        "the summary says where ground truth was looked for: {stdout}"
+    );
+    let kitti = std::fs::read_to_string(out.join("trajectory.kitti.txt")).unwrap();
+    assert_eq!(kitti.lines().count(), 20, "the older file was replaced");
+    assert!(out.join("report.json").is_file());
 }
 
 /// A trajectory file as (frame index at 10 Hz, rotation, position).
