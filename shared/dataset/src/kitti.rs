@@ -72,6 +72,29 @@ impl Calibration {
     }
 }
 
+/// The PNG and JPEG files of `dir` in natural order: numbers in names compare by value, so
+/// `img_2.png` comes before `img_10.png` (as a camera that does not zero-pad writes them),
+/// and KITTI's zero-padded names keep their order.
+pub fn image_files(dir: &Path) -> Result<Vec<PathBuf>, DatasetError> {
+    let is_image = |p: &Path| {
+        p.extension().and_then(|x| x.to_str()).is_some_and(|x| {
+            ["png", "jpg", "jpeg"]
+                .iter()
+                .any(|e| x.eq_ignore_ascii_case(e))
+        })
+    };
+    let mut images: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| DatasetError::io(dir, e))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| is_image(p))
+        .collect();
+    images.sort_by(|a, b| {
+        let name = |p: &Path| p.file_name().map(|n| n.to_string_lossy().into_owned());
+        natord::compare(&name(a).unwrap_or_default(), &name(b).unwrap_or_default())
+    });
+    Ok(images)
+}
+
 /// One KITTI odometry sequence on disk.
 #[derive(Debug, Clone)]
 pub struct KittiSequence {
@@ -103,14 +126,12 @@ impl KittiSequence {
             .ok_or_else(|| {
                 DatasetError::invalid(dir, "no image_0/ or image_2/ directory with the frames")
             })?;
-        let mut images: Vec<PathBuf> = std::fs::read_dir(&img_dir)
-            .map_err(|e| DatasetError::io(&img_dir, e))?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("png")))
-            .collect();
-        images.sort();
+        let images = image_files(&img_dir)?;
         if images.is_empty() {
-            return Err(DatasetError::invalid(&img_dir, "no PNG frames found"));
+            return Err(DatasetError::invalid(
+                &img_dir,
+                "no PNG or JPEG frames found",
+            ));
         }
         if images.len() != times.len() {
             return Err(DatasetError::invalid(
@@ -199,7 +220,45 @@ pub fn read_times(path: &Path) -> Result<Vec<f64>, DatasetError> {
 
 #[cfg(test)]
 mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
     use super::*;
+
+    #[test]
+    fn image_files_sort_numbers_by_value_and_take_jpeg() {
+        let d = tempfile::tempdir().unwrap();
+        for n in [
+            "img_10.png",
+            "img_2.JPG",
+            "img_1.jpeg",
+            "notes.txt",
+            "img_100.png",
+        ] {
+            std::fs::write(d.path().join(n), b"").unwrap();
+        }
+        let names: Vec<String> = image_files(d.path())
+            .unwrap()
+            .iter()
+            .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+            .collect();
+        assert_eq!(
+            names,
+            ["img_1.jpeg", "img_2.JPG", "img_10.png", "img_100.png"]
+        );
+        // KITTI's zero-padded names keep their order
+        let k = tempfile::tempdir().unwrap();
+        for i in [10, 9, 0, 100] {
+            std::fs::write(k.path().join(format!("{i:06}.png")), b"").unwrap();
+        }
+        let names: Vec<String> = image_files(k.path())
+            .unwrap()
+            .iter()
+            .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+            .collect();
+        assert_eq!(
+            names,
+            ["000000.png", "000009.png", "000010.png", "000100.png"]
+        );
+    }
 
     #[test]
     fn calibration_without_p0_is_a_clear_error() {

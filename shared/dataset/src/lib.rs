@@ -15,7 +15,7 @@ mod trajectory;
 
 pub use error::DatasetError;
 pub use image::GrayImage;
-pub use kitti::{read_times, Calibration, KittiSequence};
+pub use kitti::{image_files, read_times, Calibration, KittiSequence};
 pub use trajectory::{
     hold_last_pose, read_trajectory, write_trajectory, PoseLines, StampedPose, Trajectory,
     TrajectoryFormat, ROTATION_TOLERANCE,

@@ -343,3 +343,66 @@ fn pure_rotation_keeps_the_position_and_the_scale() {
         "scale changed: {ratio} vs {true_ratio}"
     );
 }
+
+/// A camera's own image folder: JPEG frames named without zero padding (`0.jpg`, `1.jpg`,
+/// ..., `24.jpg`, which sort differently as text), KITTI 00's first 25 frames. The frames are
+/// read in number order, so the run tracks them as the PNG run does.
+#[test]
+fn jpeg_frames_with_unpadded_names_are_read_in_number_order() {
+    let Some(src) = common::shared_data("kitti/sequences/00") else {
+        return;
+    };
+    let Some(poses) = common::shared_data("kitti/poses/00.txt") else {
+        return;
+    };
+    if !common::models_ready() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("sequences/00");
+    std::fs::create_dir_all(seq.join("image_0")).unwrap();
+    std::fs::create_dir_all(tmp.path().join("poses")).unwrap();
+    std::fs::copy(src.join("calib.txt"), seq.join("calib.txt")).unwrap();
+    let n = 25;
+    let times: Vec<String> = std::fs::read_to_string(src.join("times.txt"))
+        .unwrap()
+        .lines()
+        .take(n)
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(seq.join("times.txt"), times.concat()).unwrap();
+    let gt: Vec<String> = std::fs::read_to_string(poses)
+        .unwrap()
+        .lines()
+        .take(n)
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(tmp.path().join("poses/00.txt"), gt.concat()).unwrap();
+    for i in 0..n {
+        let img = image::open(src.join(format!("image_0/{i:06}.png")))
+            .unwrap()
+            .to_luma8();
+        let mut f = std::fs::File::create(seq.join(format!("image_0/{i}.jpg"))).unwrap();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut f, 95)
+            .encode_image(&img)
+            .unwrap();
+    }
+    let report = common::run_inprocess(&seq, &tmp.path().join("out"), &[]);
+    let png = common::run_inprocess(&src, &tmp.path().join("png"), &["--max-frames", "25"]);
+    let ape = |r: &serde_json::Value| r["eval"]["ape"]["trans"]["rmse"].as_f64().unwrap();
+    let posed = |r: &serde_json::Value| r["estimated"].as_u64().unwrap();
+    eprintln!(
+        "JPEG, unpadded names: {} of {n} posed, APE {:.3} m; PNG: {} posed, APE {:.3} m",
+        posed(&report),
+        ape(&report),
+        posed(&png),
+        ape(&png)
+    );
+    assert!(posed(&report) + 2 >= posed(&png), "{report}");
+    assert!(
+        ape(&report) < 1.25 * ape(&png),
+        "APE {} m against the PNG run's {} m: frames out of order?",
+        ape(&report),
+        ape(&png)
+    );
+}
