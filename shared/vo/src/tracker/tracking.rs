@@ -1,14 +1,46 @@
-//! Tracking a frame against the map: PnP on the matches to the reference keyframe's
-//! landmarks (or the motion model), the local-map search, the robust final refinement, and
-//! the keyframe decision with the new keyframe's observations and re-observations.
+//! Tracking a frame against the map, as named steps: the matches to the reference
+//! keyframe's landmarks, a first pose (PnP on them, or the motion model), the local-map
+//! search around it, the pose refined on every landmark match (robustly, last), the motion
+//! model, and the keyframe decision with the new keyframe's observations and
+//! re-observations.
 
 use super::frame::bearing;
-use super::{FrameMeta, FrameOutput, Tracker, TrackingState};
-use supermvo_geometry::pnp::solve_pnp_ransac;
+use super::{FrameMeta, FrameOutput, Keyframe, Tracker, TrackingState};
+use supermvo_geometry::pnp::{reprojection_sq, solve_pnp_ransac, PnpEstimate};
 use supermvo_geometry::{Mat3, Vec3};
 use supermvo_inference::{Features, Matches};
 
+/// The frame's matches to landmarks: those through the reference keyframe's matches first,
+/// then those the local-map search found, each with the landmark's position and the
+/// keypoint's bearing.
+struct LandmarkMatches {
+    /// `(keypoint of the frame, landmark id)`.
+    pairs: Vec<(usize, usize)>,
+    /// How many of `pairs` (the first ones) come through the keyframe's matches.
+    from_keyframe: usize,
+    /// Landmark positions, world frame.
+    points: Vec<Vec3>,
+    /// Keypoint bearings.
+    bearings: Vec<Vec3>,
+}
+
+/// A frame's pose `T_cam_world` and which landmark matches agree with it (within the PnP
+/// threshold).
+struct PoseFit {
+    r: Mat3,
+    t: Vec3,
+    inlier: Vec<bool>,
+}
+
+impl PoseFit {
+    fn tracked(&self) -> usize {
+        self.inlier.iter().filter(|&&x| x).count()
+    }
+}
+
 impl Tracker {
+    /// Tracks one frame against the reference keyframe and the local map (see the module
+    /// docs); a frame that cannot be tracked goes to [`Tracker::unusable_reference`].
     pub(crate) fn track(
         &mut self,
         input: &FrameMeta,
@@ -21,92 +53,139 @@ impl Tracker {
         let Some(m) = m else {
             return self.unusable_reference(input, kf, cur, 0, TrackingState::Lost);
         };
-        let with_lm: Vec<(usize, usize, usize)> = m
+        let mut matches = self.keyframe_landmark_matches(&kf, &cur, m);
+        let Some(first) = self.first_pose(input, &matches) else {
+            return self.unusable_reference(input, kf, cur, m.pairs.len(), TrackingState::Lost);
+        };
+        self.add_local_map_matches(&mut matches, &cur, &first);
+        let Some(fit) = self.refine_pose(&matches, &first) else {
+            return self.unusable_reference(input, kf, cur, m.pairs.len(), TrackingState::Lost);
+        };
+        self.log_tracked(input, m, &matches, &first, &fit);
+        self.update_motion_model(input, &fit);
+        let tracked = fit.tracked();
+        if !self.needs_keyframe(&kf, tracked) {
+            let counts = (m.pairs.len(), tracked);
+            let pose = Some((fit.r, fit.t));
+            let out = self.output(
+                input,
+                TrackingState::Tracking,
+                pose,
+                cur.len(),
+                counts,
+                false,
+            );
+            self.keyframe = Some(kf);
+            return out;
+        }
+        self.make_keyframe(input, kf, cur, m, (&matches, &fit))
+    }
+
+    /// The matches to the reference keyframe whose keyframe keypoint carries a landmark.
+    fn keyframe_landmark_matches(
+        &self,
+        kf: &Keyframe,
+        cur: &Features,
+        m: &Matches,
+    ) -> LandmarkMatches {
+        let pairs: Vec<(usize, usize)> = m
             .pairs
             .iter()
-            .filter_map(|&(a, b)| kf.landmark[a].map(|id| (a, b, id)))
+            .filter_map(|&(a, b)| kf.landmark[a].map(|id| (b, id)))
             .collect();
-        let pw: Vec<Vec3> = with_lm
+        let points = pairs
             .iter()
-            .map(|(_, _, id)| self.map.landmarks[id].p)
+            .map(|(_, id)| self.map.landmarks[id].p)
             .collect();
-        let bw: Vec<Vec3> = with_lm
+        let bearings = pairs
             .iter()
-            .map(|&(_, b, _)| bearing(&self.calib, &cur.keypoints[b]))
+            .map(|&(b, _)| bearing(&self.calib, &cur.keypoints[b]))
             .collect();
-        let est = solve_pnp_ransac(&pw, &bw, self.focal(), &self.cfg.pnp)
+        LandmarkMatches {
+            from_keyframe: pairs.len(),
+            pairs,
+            points,
+            bearings,
+        }
+    }
+
+    /// PnP RANSAC on the keyframe's landmark matches; when too few agree, the motion model's
+    /// prediction with no inliers (`None` without a motion model either).
+    fn first_pose(&self, input: &FrameMeta, lm: &LandmarkMatches) -> Option<PnpEstimate> {
+        solve_pnp_ransac(&lm.points, &lm.bearings, self.focal(), &self.cfg.pnp)
             .filter(|e| e.inlier_count() >= self.cfg.min_tracked)
             .or_else(|| {
                 // the keyframe's landmarks do not suffice: predict the pose with constant
                 // velocity and search the whole local map around it
                 let (r, t) = self.predict()?;
                 tracing::debug!(frame = input.index, "keyframe PnP failed: motion model");
-                Some(supermvo_geometry::pnp::PnpEstimate {
+                Some(PnpEstimate {
                     r,
                     t,
-                    inliers: vec![false; pw.len()],
+                    inliers: vec![false; lm.points.len()],
                 })
-            });
-        let Some(est) = est else {
-            return self.unusable_reference(input, kf, cur, m.pairs.len(), TrackingState::Lost);
-        };
-        // the local map: landmarks of the window that this keyframe does not carry
+            })
+    }
+
+    /// Adds the local-map search's matches around `first`: landmarks of the window that the
+    /// keyframe's inliers do not already give, to keypoints those inliers do not take.
+    fn add_local_map_matches(&self, lm: &mut LandmarkMatches, cur: &Features, first: &PnpEstimate) {
         let mut taken = vec![false; cur.len()];
         let mut skip = std::collections::BTreeSet::new();
-        for (k, &(_, b, id)) in with_lm.iter().enumerate() {
-            if est.inliers[k] {
+        for (k, &(b, id)) in lm.pairs.iter().enumerate() {
+            if first.inliers[k] {
                 taken[b] = true;
                 skip.insert(id);
             }
         }
         // a prediction is coarser than a PnP pose: search twice as far
-        let predicted = est.inlier_count() == 0;
+        let predicted = first.inlier_count() == 0;
         let radius = self.cfg.map_search_radius_px * if predicted { 2.0 } else { 1.0 };
-        let from_map = self.search_local_map(&cur, (&est.r, &est.t), &taken, &skip, radius);
-        // refine the pose on both sets, re-selecting inliers with the refined pose
-        let all_p: Vec<Vec3> = pw
-            .iter()
-            .copied()
-            .chain(from_map.iter().map(|(_, id)| self.map.landmarks[id].p))
-            .collect();
-        let all_b: Vec<Vec3> = bw
-            .iter()
-            .copied()
-            .chain(
-                from_map
-                    .iter()
-                    .map(|&(b, _)| bearing(&self.calib, &cur.keypoints[b])),
-            )
-            .collect();
+        let from_map = self.search_local_map(cur, (&first.r, &first.t), &taken, &skip, radius);
+        for &(b, id) in &from_map {
+            lm.pairs.push((b, id));
+            lm.points.push(self.map.landmarks[&id].p);
+        }
+        lm.bearings.extend(
+            from_map
+                .iter()
+                .map(|&(b, _)| bearing(&self.calib, &cur.keypoints[b])),
+        );
+    }
+
+    /// The pose refined on every landmark match: after a motion-model prediction a PnP
+    /// RANSAC over them all; then two rounds of refinement on the matches within the PnP
+    /// threshold; last, when configured, the robust refinement on every match. `None` when
+    /// fewer than `min_tracked` matches agree.
+    fn refine_pose(&self, lm: &LandmarkMatches, first: &PnpEstimate) -> Option<PoseFit> {
+        let (all_p, all_b) = (&lm.points, &lm.bearings);
+        let from_map = lm.pairs.len() - lm.from_keyframe;
         let thr_sq = (self.cfg.pnp.threshold_px / self.focal()).powi(2);
-        let reproj_sq = supermvo_geometry::pnp::reprojection_sq;
         let inliers_at = |r: &Mat3, t: &Vec3| -> Vec<bool> {
             all_p
                 .iter()
-                .zip(&all_b)
-                .map(|(p, b)| reproj_sq(r, t, p, b) < thr_sq)
+                .zip(all_b)
+                .map(|(p, b)| reprojection_sq(r, t, p, b) < thr_sq)
                 .collect()
         };
-        let (mut r, mut t) = (est.r, est.t);
-        if predicted {
+        let (mut r, mut t) = (first.r, first.t);
+        if first.inlier_count() == 0 {
             // motion-model prediction: a PnP RANSAC over the local map's matches
-            let Some(e) = solve_pnp_ransac(&all_p, &all_b, self.focal(), &self.cfg.pnp)
-                .filter(|e| e.inlier_count() >= self.cfg.min_tracked)
-            else {
-                return self.unusable_reference(input, kf, cur, m.pairs.len(), TrackingState::Lost);
-            };
+            let e = solve_pnp_ransac(all_p, all_b, self.focal(), &self.cfg.pnp)
+                .filter(|e| e.inlier_count() >= self.cfg.min_tracked)?;
             (r, t) = (e.r, e.t);
         }
-        let mut inlier: Vec<bool> = est
+        let mut inlier: Vec<bool> = first
             .inliers
             .iter()
             .copied()
-            .chain(std::iter::repeat_n(false, from_map.len()))
+            .chain(std::iter::repeat_n(false, from_map))
             .collect();
-        if !from_map.is_empty() {
+        if from_map > 0 {
+            // refine the pose on both sets, re-selecting inliers with the refined pose
             for _ in 0..2 {
                 let sel: Vec<usize> = (0..all_p.len())
-                    .filter(|&i| reproj_sq(&r, &t, &all_p[i], &all_b[i]) < thr_sq)
+                    .filter(|&i| reprojection_sq(&r, &t, &all_p[i], &all_b[i]) < thr_sq)
                     .collect();
                 if sel.len() < self.cfg.min_tracked {
                     break;
@@ -123,8 +202,8 @@ impl Tracker {
             let (r2, t2) = supermvo_geometry::pnp::refine_pose_robust(
                 &r,
                 &t,
-                &all_p,
-                &all_b,
+                all_p,
+                all_b,
                 (0.5 * thr, 3.0 * thr),
                 10,
             );
@@ -133,30 +212,50 @@ impl Tracker {
                 (r, t, inlier) = (r2, t2, inlier2);
             }
         }
-        let tracked = inlier.iter().filter(|&&x| x).count();
-        if tracked < self.cfg.min_tracked {
-            return self.unusable_reference(input, kf, cur, m.pairs.len(), TrackingState::Lost);
+        let fit = PoseFit { r, t, inlier };
+        (fit.tracked() >= self.cfg.min_tracked).then_some(fit)
+    }
+
+    /// The debug log line of a tracked frame (match counts, inliers, median reprojection).
+    fn log_tracked(
+        &self,
+        input: &FrameMeta,
+        m: &Matches,
+        lm: &LandmarkMatches,
+        first: &PnpEstimate,
+        fit: &PoseFit,
+    ) {
+        if !tracing::enabled!(tracing::Level::DEBUG) {
+            return;
         }
-        let map_inliers = inlier[pw.len()..].iter().filter(|&&x| x).count();
-        if tracing::enabled!(tracing::Level::DEBUG) {
-            let mut errs: Vec<f64> = all_p
+        let mut errs: Vec<f64> = lm
+            .points
+            .iter()
+            .zip(&lm.bearings)
+            .map(|(p, b)| reprojection_sq(&fit.r, &fit.t, p, b).sqrt() * self.focal())
+            .collect();
+        errs.sort_by(f64::total_cmp);
+        let median = errs.get(errs.len() / 2).copied().unwrap_or(f64::NAN);
+        tracing::debug!(
+            frame = input.index,
+            matches = m.pairs.len(),
+            with_landmark = lm.from_keyframe,
+            keyframe_inliers = first.inlier_count(),
+            map_candidates = lm.pairs.len() - lm.from_keyframe,
+            map_inliers = fit.inlier[lm.from_keyframe..]
                 .iter()
-                .zip(&all_b)
-                .map(|(p, b)| reproj_sq(&r, &t, p, b).sqrt() * self.focal())
-                .collect();
-            errs.sort_by(f64::total_cmp);
-            let median = errs.get(errs.len() / 2).copied().unwrap_or(f64::NAN);
-            tracing::debug!(
-                frame = input.index,
-                matches = m.pairs.len(),
-                with_landmark = pw.len(),
-                keyframe_inliers = est.inlier_count(),
-                map_candidates = from_map.len(),
-                map_inliers,
-                reprojection_median_px = median,
-                "tracked"
-            );
-        }
+                .filter(|&&x| x)
+                .count(),
+            reprojection_median_px = median,
+            "tracked"
+        );
+    }
+
+    /// The frame's pose becomes the last pose; the motion since the last tracked one the
+    /// constant-velocity model (after a relocalisation the gap spans failed frames, so the
+    /// model starts again).
+    fn update_motion_model(&mut self, input: &FrameMeta, fit: &PoseFit) {
+        let (r, t) = (fit.r, fit.t);
         if self.lost_streak > 0 {
             // relocalised: the motion since the last tracked pose spans the failed frames
             tracing::debug!(frame = input.index, after = self.lost_streak, "relocalised");
@@ -169,8 +268,13 @@ impl Tracker {
         }
         self.last_pose = (r, t);
         self.frames_since_keyframe += 1;
-        // the reference keyframe's established landmarks (seen by 3 or more keyframes, as
-        // ORB-SLAM counts them; not the ones it has just triangulated)
+    }
+
+    /// Whether the frame becomes a keyframe: too few landmarks tracked, too many frames
+    /// since the last keyframe, or (when configured) fewer tracked than the ratio of the
+    /// reference's established landmarks (seen by 3 or more keyframes, as ORB-SLAM counts
+    /// them; not the ones it has just triangulated).
+    fn needs_keyframe(&self, kf: &Keyframe, tracked: usize) -> bool {
         let established = || {
             kf.landmark
                 .iter()
@@ -178,33 +282,34 @@ impl Tracker {
                 .filter(|id| self.map.landmarks.get(id).is_some_and(|l| l.obs.len() >= 3))
                 .count()
         };
-        let need_kf = tracked < self.cfg.keyframe_min_tracked
+        tracked < self.cfg.keyframe_min_tracked
             || self.frames_since_keyframe >= self.cfg.max_frames_between_keyframes
             || (self.cfg.keyframe_ratio > 0.0
-                && (tracked as f64) < self.cfg.keyframe_ratio * established() as f64);
-        if !need_kf {
-            let out = self.output(
-                input,
-                TrackingState::Tracking,
-                Some((r, t)),
-                cur.len(),
-                (m.pairs.len(), tracked),
-                false,
-            );
-            self.keyframe = Some(kf);
-            return out;
-        }
-        // new keyframe: keep the inlier landmarks (from the keyframe and from the local
-        // map), triangulate the other matches
+                && (tracked as f64) < self.cfg.keyframe_ratio * established() as f64)
+    }
+
+    /// Makes the frame a keyframe: its inlier landmark matches (from the keyframe and from
+    /// the local map) become observations, matches just outside the threshold are tried as
+    /// re-observations, and its other matches to the reference extend pending tracks or
+    /// triangulate new landmarks.
+    fn make_keyframe(
+        &mut self,
+        input: &FrameMeta,
+        kf: Keyframe,
+        cur: Features,
+        m: &Matches,
+        (lm, fit): (&LandmarkMatches, &PoseFit),
+    ) -> FrameOutput {
+        let (r, t) = (fit.r, fit.t);
+        let tracked = fit.tracked();
         let cur_id = self.map.new_keyframe_id(r, t);
         let mut landmark = vec![None; cur.len()];
-        let observed = with_lm
+        let observed = lm
+            .pairs
             .iter()
-            .map(|&(_, b, id)| (b, id))
-            .chain(from_map.iter().copied())
-            .zip(&inlier)
+            .zip(&fit.inlier)
             .filter(|(_, &ok)| ok)
-            .map(|(o, _)| o);
+            .map(|(o, _)| *o);
         let mut used = std::collections::BTreeSet::new();
         for (b, id) in observed {
             if landmark[b].is_some() || !used.insert(id) {
@@ -217,11 +322,12 @@ impl Tracker {
         }
         if self.cfg.reobserve_max_px > 0.0 {
             let gate = self.cfg.reobserve_max_px / self.focal();
-            for (k, &(_, b, id)) in with_lm.iter().enumerate() {
-                if inlier[k]
+            for k in 0..lm.from_keyframe {
+                let (b, id) = lm.pairs[k];
+                if fit.inlier[k]
                     || landmark[b].is_some()
                     || used.contains(&id)
-                    || reproj_sq(&r, &t, &pw[k], &bw[k]).sqrt() >= gate
+                    || reprojection_sq(&r, &t, &lm.points[k], &lm.bearings[k]).sqrt() >= gate
                 {
                     continue;
                 }

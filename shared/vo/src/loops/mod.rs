@@ -1,0 +1,339 @@
+//! Loop closure: place recognition over keyframes, geometric verification with a Sim(3)
+//! between the two places' triangulated points, and a Sim(3) pose graph of keyframes that
+//! spreads the drift (scale included) along the loop.
+//!
+//! Place recognition aggregates each keyframe's learned descriptors into a VLAD vector over
+//! a small vocabulary that is learned at the start of the run from the first keyframes'
+//! descriptors (k-means, fixed seed): no training data is shipped or needed, the vocabulary
+//! fits the camera and scene at hand, and VLAD's residual aggregation keeps far more of the
+//! descriptor than a bag of words of the same size. A candidate is accepted only when the
+//! two keyframes' 3D points agree under one similarity (RANSAC, reprojection in both images)
+//! and the next keyframe finds the same place again.
+//!
+//! Frames: keyframe poses are `T_world_cam`; a keyframe's points are in its own camera frame
+//! at the map scale of the moment, so the verified transform carries the scale drift between
+//! the two visits.
+//!
+//! Where each part lives: the vocabulary and VLAD vectors in [`place_recognition`], the
+//! points of each keyframe and the Sim(3) check of a candidate in [`verification`], the
+//! Sim(3) pose graph in [`pose_graph`]; this file keeps the keyframes and decides.
+
+mod place_recognition;
+mod pose_graph;
+mod verification;
+
+pub use pose_graph::pose_of;
+
+use nalgebra::DMatrix;
+use place_recognition::dot;
+use pose_graph::sim3_of;
+use supermvo_dataset::Calibration;
+use supermvo_geometry::{Pose, Vec3};
+use supermvo_inference::Features;
+use supermvo_optim::lie::{LieGroup, Sim3};
+
+/// Loop-closure settings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LoopConfig {
+    /// Words of the VLAD vocabulary.
+    pub vocabulary_size: usize,
+    /// Keyframes whose descriptors train the vocabulary.
+    pub vocabulary_keyframes: usize,
+    /// Keyframes that must separate a query from a candidate (recent places are not loops).
+    pub min_separation: usize,
+    /// Best-scoring candidates verified per keyframe.
+    pub candidates: usize,
+    /// Minimum cosine similarity of mutually nearest descriptors.
+    pub min_cosine: f32,
+    /// 3D-3D inliers a loop needs.
+    pub min_inliers: usize,
+    /// Reprojection threshold of the verification, pixels.
+    pub reprojection_px: f64,
+    /// Consecutive keyframes that must see the same place before a loop is accepted.
+    pub consistency: usize,
+}
+
+impl Default for LoopConfig {
+    fn default() -> Self {
+        Self {
+            vocabulary_size: 32,
+            vocabulary_keyframes: 10,
+            min_separation: 40,
+            candidates: 3,
+            min_cosine: 0.8,
+            min_inliers: 20,
+            reprojection_px: 3.0,
+            consistency: 2,
+        }
+    }
+}
+
+/// An accepted loop.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct LoopEdge {
+    /// Frame index of the keyframe that recognised the place.
+    pub query_frame: usize,
+    /// Frame index of the earlier keyframe it recognised.
+    pub match_frame: usize,
+    /// Verified 3D-3D inliers.
+    pub inliers: usize,
+    /// Scale of the query's map relative to the match's (1 without drift).
+    pub scale: f64,
+    /// VLAD similarity.
+    pub similarity: f32,
+}
+
+/// A correction of the world frame after a loop: the similarity that takes everything the
+/// tracker estimated (its map and poses) to the corrected world.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Correction {
+    /// Frame index of the keyframe at which the loop was closed.
+    pub frame: usize,
+    /// `x_corrected = s R x + t`.
+    pub sim3: Sim3,
+}
+
+struct KeyframeEntry {
+    frame: usize,
+    /// Pose in the odometry frame (the tracker's frame with all corrections undone).
+    odom: Sim3,
+    /// Current best estimate.
+    opt: Sim3,
+    keypoints: Vec<[f32; 2]>,
+    /// Unit descriptors, one row per keypoint.
+    desc: DMatrix<f32>,
+    /// Triangulated point of each keypoint, in this keyframe's camera frame.
+    points: Vec<Option<Vec3>>,
+    vlad: Option<Vec<f32>>,
+}
+
+/// A recognised but not yet confirmed place.
+#[derive(Debug, Clone, Copy)]
+struct Detection {
+    keyframe: usize,
+    matched: usize,
+    rel: Sim3,
+    inliers: usize,
+    similarity: f32,
+}
+
+/// The loop closer (see module docs).
+pub struct LoopCloser {
+    calib: Calibration,
+    cfg: LoopConfig,
+    keyframes: Vec<KeyframeEntry>,
+    vocabulary: Option<DMatrix<f32>>,
+    loops: Vec<(usize, usize, Sim3, LoopEdge)>,
+    pending: Vec<Detection>,
+    /// Correction the tracker has applied: tracker frame = `fix` * odometry frame.
+    fix: Sim3,
+    /// Every estimated frame: (frame, pose in the odometry frame, keyframe entry index, pose
+    /// as reported).
+    frames: Vec<(usize, Sim3, usize, Pose)>,
+    disabled: Option<String>,
+}
+
+impl std::fmt::Debug for LoopCloser {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "LoopCloser({} keyframes, {} loops)",
+            self.keyframes.len(),
+            self.loops.len()
+        )
+    }
+}
+
+impl LoopCloser {
+    /// A loop closer for a camera with calibration `calib`.
+    pub fn new(calib: Calibration, cfg: LoopConfig) -> Self {
+        Self {
+            calib,
+            cfg,
+            keyframes: Vec::new(),
+            vocabulary: None,
+            loops: Vec::new(),
+            pending: Vec::new(),
+            fix: Sim3::identity(),
+            frames: Vec::new(),
+            disabled: None,
+        }
+    }
+
+    /// Accepted loops so far.
+    pub fn loops(&self) -> Vec<LoopEdge> {
+        self.loops.iter().map(|l| l.3.clone()).collect()
+    }
+
+    /// Why loop closure is off for this run (features without float descriptors), if it is.
+    pub fn disabled_reason(&self) -> Option<&str> {
+        self.disabled.as_deref()
+    }
+
+    fn project(&self, p: &Vec3) -> Option<(f64, f64)> {
+        (p.z > 1e-6).then(|| {
+            (
+                self.calib.fx * p.x / p.z + self.calib.cx,
+                self.calib.fy * p.y / p.z + self.calib.cy,
+            )
+        })
+    }
+
+    fn bearing(&self, kp: &[f32; 2]) -> Vec3 {
+        Vec3::new(
+            (kp[0] as f64 - self.calib.cx) / self.calib.fx,
+            (kp[1] as f64 - self.calib.cy) / self.calib.fy,
+            1.0,
+        )
+    }
+
+    /// Records a tracked non-keyframe (its pose as the tracker reported it), so that the
+    /// corrected trajectory covers every frame.
+    pub fn add_frame(&mut self, frame: usize, t_world_cam: &Pose) {
+        if let Some(k) = self.keyframes.len().checked_sub(1) {
+            let odom = self.fix.inverse().compose(&sim3_of(t_world_cam));
+            self.frames.push((frame, odom, k, *t_world_cam));
+        }
+    }
+
+    /// Adds a keyframe (its pose as the tracker reported it, and its features). When a loop
+    /// is closed, returns the correction the caller must apply to the tracker before the
+    /// next frame (see [`Correction`]); the loop closer assumes it is applied.
+    pub fn add_keyframe(
+        &mut self,
+        frame: usize,
+        t_world_cam: &Pose,
+        features: &Features,
+    ) -> Option<Correction> {
+        let odom = self.fix.inverse().compose(&sim3_of(t_world_cam));
+        let opt = match self.keyframes.last() {
+            // Chain the odometry onto the previous keyframe's best estimate.
+            Some(prev) => prev.opt.compose(&prev.odom.inverse().compose(&odom)),
+            None => odom,
+        };
+        let d = features.dim;
+        if d < 16 || features.descriptors.len() != features.len() * d {
+            self.disabled.get_or_insert_with(|| {
+                format!("loop closure needs float descriptors; these features have {d}-value descriptors (ORB)")
+            });
+        }
+        let desc = if self.disabled.is_some() {
+            DMatrix::zeros(0, 0)
+        } else {
+            let mut m = DMatrix::from_row_slice(features.len(), d, &features.descriptors);
+            for mut row in m.row_iter_mut() {
+                let n = row.norm();
+                if n > 0.0 {
+                    row /= n;
+                }
+            }
+            m
+        };
+        let index = self.keyframes.len();
+        self.keyframes.push(KeyframeEntry {
+            frame,
+            odom,
+            opt,
+            keypoints: features.keypoints.clone(),
+            desc,
+            points: Vec::new(),
+            vlad: None,
+        });
+        self.frames.push((frame, odom, index, *t_world_cam));
+        if self.disabled.is_some() {
+            return None;
+        }
+        self.triangulate(index);
+        self.update_vocabulary();
+        self.detect(index)
+    }
+
+    /// Verifies the best places for keyframe `j`; closes a loop once confirmed.
+    fn detect(&mut self, j: usize) -> Option<Correction> {
+        let q = self.keyframes[j].vlad.as_ref()?;
+        let last = j.checked_sub(self.cfg.min_separation)?;
+        let mut scored: Vec<(usize, f32)> = (0..=last)
+            .filter_map(|i| self.keyframes[i].vlad.as_ref().map(|v| (i, dot(q, v))))
+            .collect();
+        scored.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+        let found = scored
+            .iter()
+            .take(self.cfg.candidates)
+            .filter_map(|&(i, sim)| {
+                self.verify(i, j).map(|(rel, inliers)| Detection {
+                    keyframe: j,
+                    matched: i,
+                    rel,
+                    inliers,
+                    similarity: sim,
+                })
+            })
+            .max_by_key(|d| d.inliers);
+        let Some(det) = found else {
+            self.pending.clear();
+            return None;
+        };
+        tracing::debug!(
+            query = self.keyframes[j].frame,
+            matched = self.keyframes[det.matched].frame,
+            inliers = det.inliers,
+            "place recognised"
+        );
+        // Consistent with the previous keyframe's detection: the same stretch of the past.
+        let consistent = self
+            .pending
+            .last()
+            .is_some_and(|p| p.keyframe + 1 == j && p.matched.abs_diff(det.matched) <= 6);
+        if !consistent {
+            self.pending.clear();
+        }
+        self.pending.push(det);
+        if self.pending.len() < self.cfg.consistency {
+            return None;
+        }
+        let confirmed = std::mem::take(&mut self.pending);
+        for d in &confirmed {
+            let edge = LoopEdge {
+                query_frame: self.keyframes[d.keyframe].frame,
+                match_frame: self.keyframes[d.matched].frame,
+                inliers: d.inliers,
+                scale: d.rel.s,
+                similarity: d.similarity,
+            };
+            tracing::info!(
+                query = edge.query_frame,
+                matched = edge.match_frame,
+                inliers = edge.inliers,
+                scale = edge.scale,
+                "loop closed"
+            );
+            self.loops.push((d.matched, d.keyframe, d.rel, edge));
+        }
+        self.optimise();
+        let cur = &self.keyframes[j];
+        let to_corrected = cur.opt.compose(&cur.odom.inverse());
+        // Relative to what the tracker already applied.
+        let correction = to_corrected.compose(&self.fix.inverse());
+        self.fix = to_corrected;
+        Some(Correction {
+            frame: cur.frame,
+            sim3: correction,
+        })
+    }
+
+    /// The corrected pose `T_world_cam` of every frame recorded so far, in frame order: each
+    /// frame moves with its keyframe. Until a loop is closed these are the poses as reported.
+    pub fn trajectory(&self) -> Vec<(usize, Pose)> {
+        if self.loops.is_empty() {
+            return self.frames.iter().map(|f| (f.0, f.3)).collect();
+        }
+        self.frames
+            .iter()
+            .map(|(frame, odom, k, _)| {
+                let kf = &self.keyframes[*k];
+                let corrected = kf.opt.compose(&kf.odom.inverse()).compose(odom);
+                (*frame, pose_of(&corrected))
+            })
+            .collect()
+    }
+}
