@@ -238,12 +238,35 @@ where
     Ok(())
 }
 
+/// Whether log lines on stderr get ANSI colours: only on a terminal (a stage's stderr is
+/// its log file; a redirected run's is a file too), and never with `NO_COLOR` set
+/// (no-color.org).
+pub fn colour_on_stderr() -> bool {
+    use std::io::IsTerminal;
+    std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").is_none_or(|v| v.is_empty())
+}
+
+/// An error and its causes on one line, each cause once: a cause whose text the line
+/// already holds (an OS error that its context quoted) is not repeated.
+pub fn error_line(e: &anyhow::Error) -> String {
+    let mut line = e.to_string();
+    for cause in e.chain().skip(1) {
+        let text = cause.to_string();
+        if !line.contains(&text) {
+            line.push_str(": ");
+            line.push_str(&text);
+        }
+    }
+    line
+}
+
 /// Logging to stderr for a stage process (`RUST_LOG` overrides the level).
 pub fn init_logging() {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
+        .with_ansi(colour_on_stderr())
         .with_writer(std::io::stderr)
         .try_init();
 }
@@ -254,7 +277,7 @@ pub fn main_with<F: FnOnce() -> Result<()>>(stage: &str, run: F) -> std::process
     match run().with_context(|| format!("supermvo-{stage}")) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", error_line(&e));
             std::process::ExitCode::FAILURE
         }
     }
@@ -309,5 +332,25 @@ pub fn device(d: supermvo_config::Device) -> supermvo_inference::runtime::Device
     match d {
         supermvo_config::Device::Cpu => supermvo_inference::runtime::Device::Cpu,
         supermvo_config::Device::Cuda => supermvo_inference::runtime::Device::Cuda,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
+    use super::*;
+
+    #[test]
+    fn a_cause_that_the_message_quotes_is_printed_once() {
+        let os = std::io::Error::new(std::io::ErrorKind::NotFound, "No such file or directory");
+        let quoted = anyhow::Error::new(os).context("gt.txt: No such file or directory");
+        let line = error_line(&quoted.context("reading ground truth"));
+        assert_eq!(
+            line,
+            "reading ground truth: gt.txt: No such file or directory"
+        );
+        // causes the message does not hold are all kept, in order
+        let e = anyhow::anyhow!("disk full").context("writing out/report.json");
+        assert_eq!(error_line(&e), "writing out/report.json: disk full");
     }
 }

@@ -61,6 +61,7 @@ fn main() -> ExitCode {
             tracing_subscriber::EnvFilter::try_from_env("SUPERMVO_LOG")
                 .unwrap_or_else(|_| "warn".into()),
         )
+        .with_ansi(supermvo_pipeline::common::colour_on_stderr())
         .with_writer(std::io::stderr)
         .init();
     let cli = Cli::parse();
@@ -77,8 +78,12 @@ fn main() -> ExitCode {
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        Err(e) if e.is::<run_cmd::Interrupted>() => {
+            eprintln!("{e}");
+            ExitCode::from(130)
+        }
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", supermvo_pipeline::common::error_line(&e));
             ExitCode::from(2)
         }
     }

@@ -17,6 +17,16 @@ use supermvo_vo::pipeline::VoPipeline;
 use supermvo_vo::stage::Timed;
 use supermvo_vo::tracker::{output_pose, FrameInput, Tracker, TrackingState};
 
+/// A run stopped by SIGINT (Ctrl-C) or SIGTERM after writing what it had: the CLI exits
+/// with 130, as shells report an interrupted program.
+#[derive(Debug, thiserror::Error)]
+#[error("interrupted after {done} of {frames} frames; what was estimated is in {out}")]
+pub struct Interrupted {
+    done: usize,
+    frames: usize,
+    out: String,
+}
+
 /// How the pipeline runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Mode {
@@ -235,6 +245,15 @@ pub fn run(args: &RunArgs) -> Result<()> {
         serde_json::to_string_pretty(&report)?,
     )?;
     outln!("results in {}", args.out.display());
+    let interrupted = report["interrupted_at_frame"].is_u64() || report["interrupted"] == true;
+    if interrupted {
+        return Err(Interrupted {
+            done: frames,
+            frames: n,
+            out: args.out.display().to_string(),
+        }
+        .into());
+    }
     if est == 0 || est * 10 < frames {
         bail!(
             "only {est} of {frames} frames were posed: check that calib.txt belongs to these images, that consecutive images overlap, and that they are not blank; what was estimated is in {}",
@@ -277,7 +296,18 @@ fn run_inprocess(
     let first = GrayImage::load(&seq.images[0])?;
     let bar = progress_bar(args.quiet, n);
     let mut outputs = Vec::with_capacity(n);
+    // Ctrl-C (or SIGTERM) ends the loop after the frame in hand; what was estimated is
+    // written as after a complete run
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let flag = stop.clone();
+    ctrlc::set_handler(move || flag.store(true, std::sync::atomic::Ordering::SeqCst))
+        .context("installing the Ctrl-C handler")?;
+    let mut interrupted_at = None;
     for i in 0..n {
+        if stop.load(std::sync::atomic::Ordering::SeqCst) {
+            interrupted_at = Some(i);
+            break;
+        }
         let image = match GrayImage::load(&seq.images[i]) {
             Ok(img) if img.width == first.width && img.height == first.height => img,
             Ok(img) => {
@@ -320,6 +350,7 @@ fn run_inprocess(
     } else if closer.is_some() {
         outln!("loops closed: {}", loops.len());
     }
+    let n = interrupted_at.unwrap_or(n);
     let frames: Vec<(f64, Option<supermvo_geometry::Pose>)> = (0..n)
         .map(|i| (seq.times[i], posed.get(&i).copied()))
         .collect();
@@ -339,6 +370,7 @@ fn run_inprocess(
     );
     let report = serde_json::json!({
         "mode": "inprocess",
+        "interrupted_at_frame": interrupted_at,
         "sequence": seq.dir, "frames": n, "estimated": traj.poses.len(), "lost": lost,
         "unposed_frames": unposed,
         "timing_ms": {"frame_median": vo.median_ms(), "per_frame": vo.durations_ms()},
@@ -397,6 +429,7 @@ fn run_multiprocess(
     }
     let report = serde_json::json!({
         "mode": "multiprocess",
+        "interrupted": metrics.interrupted,
         "loops": loops,
         "sequence": seq.dir, "frames": records.iter().filter(|r| r.status != "end").count(),
         "estimated": est.len(), "lost": lost,

@@ -201,3 +201,28 @@ fn closed_stdout_is_not_a_panic() {
     assert!(!stderr.contains("panicked"), "{stderr}");
     assert_eq!(out.status.code(), Some(0), "{stderr}");
 }
+
+/// A missing file's OS error is printed once, not once by the file's error and again as
+/// its cause.
+#[test]
+fn a_missing_file_is_one_error_with_the_os_reason_once() {
+    let d = tempfile::tempdir().unwrap();
+    let est = write(d.path(), "est.txt", &kitti_lines(3));
+    let gt = d.path().join("missing_gt.txt");
+    let out = common::supermvo(&[
+        "eval",
+        "--gt",
+        gt.to_str().unwrap(),
+        "--est",
+        est.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("missing_gt.txt"), "{stderr}");
+    assert_eq!(
+        stderr.matches("No such file or directory").count(),
+        1,
+        "{stderr}"
+    );
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+}

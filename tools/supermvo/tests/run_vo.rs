@@ -141,9 +141,14 @@ fn black_frame_no_motion_and_unreadable_frame_are_states_not_failures() {
     };
     let out = tmp.path().join("out");
     let r = run("inprocess", &out);
+    let stderr = String::from_utf8_lossy(&r.stderr);
     assert!(
-        String::from_utf8_lossy(&r.stderr).contains("frame 18"),
+        stderr.contains("frame 18"),
         "the unreadable frame is logged"
+    );
+    assert!(
+        !stderr.contains('\u{1b}'),
+        "no colour codes where stderr is not a terminal: {stderr:?}"
     );
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
@@ -200,6 +205,13 @@ fn black_frame_no_motion_and_unreadable_frame_are_states_not_failures() {
         std::fs::read_to_string(daemon.join("trajectory.kitti.txt")).unwrap(),
         kitti
     );
+    // the stages' log files hold plain text (the ingest stage warns of the unreadable frame)
+    let mut logged = String::new();
+    for f in std::fs::read_dir(daemon.join("logs")).unwrap() {
+        logged.push_str(&std::fs::read_to_string(f.unwrap().path()).unwrap());
+    }
+    assert!(!logged.is_empty());
+    assert!(!logged.contains('\u{1b}'), "{logged:?}");
 }
 
 /// A run that poses almost nothing (here 20 black frames: only the first, the reference,
@@ -405,4 +417,48 @@ fn jpeg_frames_with_unpadded_names_are_read_in_number_order() {
         ape(&report),
         ape(&png)
     );
+}
+
+/// Ctrl-C (SIGINT) in the middle of a run, in one process and in the daemon: the run stops,
+/// writes the trajectory and report of the frames it did, says so, and exits with 130.
+#[test]
+fn an_interrupted_run_saves_what_it_has_and_exits_130() {
+    let Some(seq) = common::shared_data("kitti/sequences/00") else {
+        return;
+    };
+    if !common::models_ready() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    for (mode, after_s) in [("inprocess", 8), ("multiprocess", 15)] {
+        let out = tmp.path().join(mode);
+        let child = std::process::Command::new(env!("CARGO_BIN_EXE_supermvo"))
+            .args(["run", seq.to_str().unwrap(), "--mode", mode, "-q"])
+            .args(["--name", "runvo-interrupt", "--out", out.to_str().unwrap()])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_secs(after_s));
+        let pid = nix::unistd::Pid::from_raw(child.id() as i32);
+        nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGINT).unwrap();
+        let r = child.wait_with_output().unwrap();
+        let stderr = String::from_utf8_lossy(&r.stderr);
+        assert_eq!(r.status.code(), Some(130), "{mode}: {stderr}");
+        assert!(stderr.contains("interrupted after"), "{mode}: {stderr}");
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap())
+                .unwrap();
+        let done = report["frames"].as_u64().unwrap();
+        assert!(done > 0 && done < 160, "{mode}: {done} frames");
+        let traj = std::fs::read_to_string(out.join("trajectory.tum.txt")).unwrap();
+        assert!(
+            traj.lines().count() > 0,
+            "{mode}: the poses so far are kept"
+        );
+        eprintln!(
+            "{mode}: interrupted after {done} frames, {} poses kept",
+            traj.lines().count()
+        );
+    }
 }
