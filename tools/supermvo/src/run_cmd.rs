@@ -385,6 +385,16 @@ fn run_multiprocess(
     cfg: &Config,
     seq: &KittiSequence,
 ) -> Result<(Trajectory, serde_json::Value)> {
+    // ONNX Runtime and the models, checked here before any stage starts: a missing one is
+    // one clear error (as in process) instead of stages failing and being restarted
+    drop(
+        features::extractor(&cfg.pipeline)
+            .context("checking the front end before starting the daemon")?,
+    );
+    drop(
+        matching::matcher(&cfg.pipeline)
+            .context("checking the front end before starting the daemon")?,
+    );
     let metrics = supermvo_pipeline::supervisor::run(&SupervisorOptions {
         config: cfg.clone(),
         seq: seq.dir.clone(),

@@ -129,3 +129,35 @@ fn without_the_models_the_run_says_how_to_fetch_them() {
         "{err}"
     );
 }
+
+/// The daemon checks ONNX Runtime and the models before it starts any stage: a missing
+/// model is the same one clear error as in process, not stages failing and restarting.
+#[test]
+fn the_daemon_checks_the_models_before_starting_stages() {
+    let Some(seq) = common::shared_data("kitti/sequences/06") else {
+        return;
+    };
+    if !common::models_ready() {
+        return;
+    }
+    let cache = tempfile::tempdir().unwrap();
+    let out = cache.path().join("out");
+    let r = std::process::Command::new(env!("CARGO_BIN_EXE_supermvo"))
+        .arg("run")
+        .arg(&seq)
+        .args(["--mode", "multiprocess", "-q", "--max-frames", "3"])
+        .args(["--name", "preflight-test", "--out"])
+        .arg(&out)
+        .env("SUPERMVO_CACHE", cache.path())
+        .env("ORT_DYLIB_PATH", common::runtime_library())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("xfeat.onnx not found") && err.contains("supermvo models fetch xfeat"),
+        "{err}"
+    );
+    assert!(!err.contains("restart"), "{err}");
+    assert!(!out.join("logs").exists(), "no stage was started");
+}
