@@ -44,6 +44,13 @@ pub enum DatasetError {
 
 impl DatasetError {
     pub(crate) fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        if source.kind() == std::io::ErrorKind::InvalidData {
+            // a line reader met bytes that are not UTF-8: a binary file where text belongs
+            return Self::Invalid {
+                path: path.into(),
+                message: "not a text file (it holds bytes that are not UTF-8 text); give the text file this expects".into(),
+            };
+        }
         Self::Io {
             path: path.into(),
             source,

@@ -235,4 +235,33 @@ impl<G: LieGroup<D>, const D: usize> PoseGraph<G, D> {
     pub fn error(&self) -> f64 {
         self.error_at(&self.values)
     }
+
+    /// The external ids of the variables that no chain of between-factors links to a
+    /// variable with a prior (to the first variable when there is none): their values are
+    /// not determined by the graph (a truncated file, a missing edge).
+    pub fn unanchored(&self) -> Vec<usize> {
+        let n = self.values.len();
+        let mut adjacent: Vec<Vec<usize>> = vec![Vec::new(); n];
+        for f in &self.between {
+            if f.i < n && f.j < n {
+                adjacent[f.i].push(f.j);
+                adjacent[f.j].push(f.i);
+            }
+        }
+        let mut reached = vec![false; n];
+        let mut todo: Vec<usize> = self.priors.iter().map(|p| p.i).filter(|&i| i < n).collect();
+        if todo.is_empty() && n > 0 {
+            todo.push(0);
+        }
+        while let Some(v) = todo.pop() {
+            if std::mem::replace(&mut reached[v], true) {
+                continue;
+            }
+            todo.extend(adjacent[v].iter().copied().filter(|&w| !reached[w]));
+        }
+        (0..n)
+            .filter(|&v| !reached[v])
+            .map(|v| self.keys[v])
+            .collect()
+    }
 }

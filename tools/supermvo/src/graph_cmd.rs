@@ -45,6 +45,15 @@ fn optimize<G: supermvo_optim::lie::LieGroup<D>, const D: usize>(
     }
     let anchor = Prior::with_variances(0, g.values[0], variances);
     g.priors.push(anchor);
+    let loose = g.unanchored();
+    if let Some(first) = loose.first() {
+        anyhow::bail!(
+            "the graph is not connected: {} of {} vertices (the first is vertex {first}) have no chain of edges to vertex {}, so the optimisation cannot place them; is the file truncated or an edge missing?",
+            loose.len(),
+            g.values.len(),
+            g.keys[0]
+        );
+    }
     let mut lm = Lm::new(g, params)?;
     Ok(lm.optimize())
 }
@@ -71,12 +80,14 @@ pub fn run(args: &GraphArgs) -> Result<()> {
     let start = Instant::now();
     let (summary, vertices, edges) = match &mut graph {
         G2oGraph::Spatial(g) => (
-            optimize(g, &PRIOR_VARIANCES_SE3, params)?,
+            optimize(g, &PRIOR_VARIANCES_SE3, params)
+                .with_context(|| file.display().to_string())?,
             g.values.len(),
             g.between.len(),
         ),
         G2oGraph::Planar(g) => (
-            optimize(g, &PRIOR_VARIANCES_SE2, params)?,
+            optimize(g, &PRIOR_VARIANCES_SE2, params)
+                .with_context(|| file.display().to_string())?,
             g.values.len(),
             g.between.len(),
         ),

@@ -126,6 +126,21 @@ fn bad_g2o_input() {
         &["graph", "optimize", &p],
         &["npd.g2o:3:", "not positive definite"],
     );
+    // a truncated file: vertices 2 and 3 lost their edges, so nothing places them
+    let p = write(
+        d.path(),
+        "truncated.g2o",
+        &format!("{V}VERTEX_SE2 2 2 0 0\nVERTEX_SE2 3 3 0 0\nEDGE_SE2 0 1 1 0 0 {INFO}\n"),
+    );
+    common::expect_error(
+        &["graph", "optimize", &p],
+        &[
+            "truncated.g2o",
+            "not connected",
+            "2 of 4 vertices",
+            "vertex 2",
+        ],
+    );
     let p = write(d.path(), "empty.g2o", "# nothing\n");
     common::expect_error(
         &["graph", "optimize", &p],

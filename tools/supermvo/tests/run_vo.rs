@@ -78,6 +78,16 @@ fn bad_sequences_are_clear_errors() {
         &["run", seq.to_str().unwrap()],
         &["calib.txt", "no 'P0:' line"],
     );
+    // a binary file where calib.txt belongs
+    std::fs::write(
+        seq.join("calib.txt"),
+        [0x89u8, 0x50, 0x4e, 0x47, 0xff, 0xfe, 0x00],
+    )
+    .unwrap();
+    common::expect_error(
+        &["run", seq.to_str().unwrap()],
+        &["calib.txt", "not a text file"],
+    );
     // calibration that does not fit the images (principal point outside a 64x64 frame)
     std::fs::write(
         seq.join("calib.txt"),
