@@ -203,6 +203,20 @@ fn multiprocess_lossless_equals_inprocess_bit_for_bit_on_kitti_03() {
     assert_eq!(metrics.frames.get("ok"), Some(&n));
     assert!(metrics.restarts.is_empty());
     assert!(metrics.end_to_end_ms.count == n);
+    // every stage reports the CPU it spends per frame from its own accounting, and the
+    // networks cost most of it
+    for stage in ["ingest", "features", "matching", "tracking", "backend"] {
+        let cpu = &metrics.stage_cpu_ms[stage];
+        assert!(cpu.count + 1 >= n && cpu.mean > 0.0, "{stage}: {cpu:?}");
+    }
+    let (features, tracking) = (
+        &metrics.stage_cpu_ms["features"],
+        &metrics.stage_cpu_ms["tracking"],
+    );
+    assert!(
+        features.mean > tracking.mean,
+        "{features:?} vs {tracking:?}"
+    );
     assert_eq!(
         ipc_files(),
         before,

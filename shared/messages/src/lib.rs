@@ -18,7 +18,7 @@ use std::time::{SystemTime, UNIX_EPOCH};
 pub use iceoryx2;
 
 /// Version of the message layouts; every header carries it and receivers reject others.
-pub const SCHEMA_VERSION: u32 = 1;
+pub const SCHEMA_VERSION: u32 = 2;
 
 /// Frames in flight between ingest and tracking at most (credit-based flow control). The
 /// data services keep at least this much history so a restarted stage can pick up every
@@ -269,6 +269,10 @@ pub struct Progress {
     pub t_out_ns: u64,
     /// Capture time of the frame (ingest), wall-clock ns.
     pub t_capture_ns: u64,
+    /// CPU time (user + system, all threads) the process had used when it sent this, ns:
+    /// between two frame events of one process, what the stage spent per frame, its waiting
+    /// and polling included.
+    pub cpu_ns: u64,
 }
 
 /// Kinds of [`Progress`] message.

@@ -118,6 +118,7 @@ impl StageContext {
             pid: std::process::id(),
             event: event as u32,
             t_out_ns: now_ns(),
+            cpu_ns: process_cpu_ns(),
             ..Default::default()
         }
     }
@@ -236,6 +237,18 @@ where
     s.send()
         .map_err(|e| MessageError::ipc("sending a sample", e))?;
     Ok(())
+}
+
+/// CPU time (user + system, every thread) this process has used, ns, from its own
+/// accounting (`getrusage`); 0 where that is unavailable.
+pub fn process_cpu_ns() -> u64 {
+    use nix::sys::resource::{getrusage, UsageWho};
+    let Ok(u) = getrusage(UsageWho::RUSAGE_SELF) else {
+        return 0;
+    };
+    let ns =
+        |t: nix::sys::time::TimeVal| t.tv_sec() as u64 * 1_000_000_000 + t.tv_usec() as u64 * 1_000;
+    ns(u.user_time()) + ns(u.system_time())
 }
 
 /// Whether log lines on stderr get ANSI colours: only on a terminal (a stage's stderr is

@@ -64,6 +64,8 @@ pub struct Percentiles {
     pub p99: f64,
     /// Maximum.
     pub max: f64,
+    /// Mean.
+    pub mean: f64,
 }
 
 impl Percentiles {
@@ -81,6 +83,7 @@ impl Percentiles {
             p95: q(0.95),
             p99: q(0.99),
             max: s[s.len() - 1],
+            mean: s.iter().sum::<f64>() / s.len() as f64,
         }
     }
 }
@@ -118,6 +121,10 @@ pub struct RunMetrics {
     pub fps: f64,
     /// Processing time per frame of each stage (receive to send), ms.
     pub stage_latency_ms: BTreeMap<String, Percentiles>,
+    /// CPU time per frame of each stage, core-ms (from each process's own accounting,
+    /// between its successive frames: waiting and polling included; 200 core-ms is what two
+    /// cores give a frame at 10 Hz).
+    pub stage_cpu_ms: BTreeMap<String, Percentiles>,
     /// Capture (ingest) to tracking result, ms, over processed frames.
     pub end_to_end_ms: Percentiles,
     /// Most frames waiting in a stage's input, per stage.
@@ -314,6 +321,9 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
 
     let t_start = Instant::now();
     let mut stage_lat: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+    // per stage, CPU core-ms between successive frames of one process; by pid, its last reading
+    let mut stage_cpu: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+    let mut last_cpu_ns: BTreeMap<u32, u64> = BTreeMap::new();
     let mut e2e = Vec::new();
     let mut max_queue: BTreeMap<String, u32> = BTreeMap::new();
     let mut restarts: Vec<RestartRecord> = Vec::new();
@@ -380,6 +390,12 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
                 finished = true;
             }
             if p.event == ProgressEvent::Frame as u32 {
+                if let Some(prev) = last_cpu_ns.insert(p.pid, p.cpu_ns) {
+                    stage_cpu
+                        .entry(stage.name().into())
+                        .or_default()
+                        .push(p.cpu_ns.saturating_sub(prev) as f64 * 1e-6);
+                }
                 let q = max_queue.entry(stage.name().into()).or_default();
                 *q = (*q).max(p.queue);
                 if p.status == Status::Ok as u32 && p.t_out_ns >= p.t_in_ns {
@@ -507,6 +523,10 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
         fps: frames.values().sum::<usize>() as f64 / duration_s,
         frames,
         stage_latency_ms: stage_lat
+            .iter()
+            .map(|(k, v)| (k.clone(), Percentiles::of(v)))
+            .collect(),
+        stage_cpu_ms: stage_cpu
             .iter()
             .map(|(k, v)| (k.clone(), Percentiles::of(v)))
             .collect(),

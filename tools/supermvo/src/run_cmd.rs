@@ -430,6 +430,18 @@ fn run_multiprocess(
         e2e.p99,
         metrics.restarts.len()
     );
+    if !metrics.stage_cpu_ms.is_empty() {
+        let per_stage: Vec<String> = metrics
+            .stage_cpu_ms
+            .iter()
+            .map(|(k, v)| format!("{k} {:.1}", v.mean))
+            .collect();
+        let sum: f64 = metrics.stage_cpu_ms.values().map(|v| v.mean).sum();
+        outln!(
+            "CPU per frame (core-ms, mean): {}; sum {sum:.1} (two cores give a frame 200 at 10 Hz)",
+            per_stage.join(", ")
+        );
+    }
     let loops: serde_json::Value = std::fs::read_to_string(args.out.join("loops.json"))
         .ok()
         .and_then(|t| serde_json::from_str(&t).ok())
