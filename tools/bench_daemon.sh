@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Benchmarks of the multi-process daemon on this machine (numbers in the README):
+# Benchmarks of the multi-process daemon on this machine (numbers in docs/daemon.md):
 # 1. one hop of an image and of 2048 keypoints: iceoryx2 between processes vs a crossbeam
 #    channel between threads (p50, p99);
 # 2. lossless throughput with one and two feature workers, with the real front end and with

@@ -2,7 +2,7 @@
 """How much each KITTI clip's accuracy depends on the tracker's RANSAC seed.
 
 Runs `supermvo run SEQ --mode inprocess --seed S` on every clip in ../shared/data/kitti for
-seeds 0..N-1 (0 is the seed the README's accuracy table uses), reads each run's APE RMSE
+seeds 0..N-1 (0 is the seed of the accuracy table in docs/results.md), reads each run's APE RMSE
 after Sim(3) alignment from its report.json, and prints per clip every seed's APE, the
 median, and how many seeds meet issue 4's target. Any further arguments go to every
 `supermvo run` (for example `--frontend orb` or `--ba-window 10`), so a change to the

@@ -2,7 +2,7 @@
 //!
 //! [`evaluate`] runs the whole chain: timestamp association (TUM/EuRoC) or length check
 //! (KITTI), Umeyama alignment, APE, RPE and the KITTI metric, and returns a [`Report`]
-//! that serialises to the JSON documented in the README.
+//! that serialises to the JSON documented in docs/evaluation.md.
 
 mod associate;
 mod kitti_metric;

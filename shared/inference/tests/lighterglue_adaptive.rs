@@ -85,7 +85,7 @@ fn pruning_keeps_the_matches_and_drops_unmatchable_points() {
         "too few matches ({total}) for a meaningful check"
     );
     // pruning removes points the network itself rates unmatchable, so the matches that
-    // survive are nearly the same (measured: see the README's speed section)
+    // survive are nearly the same (measured: see docs/models.md, "Speed")
     assert!(
         common_total as f64 >= 0.95 * total as f64,
         "{common_total} of {total} matches in common"

@@ -262,7 +262,7 @@ fn worst_change(steps: &[f64]) -> f64 {
 /// estimated to true distance stays within 2 % of its first value through the straight,
 /// the 90-degree turn and the second straight, with no frame lost, on each of three
 /// scenes. (Measured: within 1 % on each. KITTI's scale rises by 10-20 % over
-/// runs like this one: README, "Monocular VO".)
+/// runs like this one: docs/vo.md, "Monocular VO".)
 #[test]
 fn one_scale_through_a_turn_on_synthetic_features() {
     for seed in 0..3 {
@@ -322,7 +322,7 @@ fn another_ransac_seed_gives_another_deterministic_run() {
     assert!(worst < 0.02, "seed 1: scale changed by {worst:.4}");
 }
 
-/// Not a check, a measurement (README, "Monocular VO"): with noise like KITTI's (0.75 px,
+/// Not a check, a measurement (docs/vo.md, "Monocular VO"): with noise like KITTI's (0.75 px,
 /// 30 % of keypoints at 3 px) the scale walks through the turn, less with a longer local
 /// BA window. `cargo test --release -p supermvo-vo --test synthetic_scale -- --ignored
 /// --nocapture` prints the last step's scale over the first for six scenes per window.
@@ -344,7 +344,7 @@ fn scale_walk_with_kitti_like_noise() {
     }
 }
 
-/// Not a check, a measurement (README, "Where the spread comes from"): does a car's geometry
+/// Not a check, a measurement (docs/vo.md, "Where the spread comes from"): does a car's geometry
 /// in a slow turn make the scale grow as it does on KITTI? The KITTI-like noise runs, at
 /// constant speed and with the slow turn, with the camera 0, 2 and 4 m ahead of the rear
 /// axle. `cargo test --release -p supermvo-vo --test synthetic_scale -- --ignored
