@@ -235,13 +235,15 @@ mod tests {
         ] {
             std::fs::write(d.path().join(n), b"").unwrap();
         }
-        let names: Vec<String> = image_files(d.path())
-            .unwrap()
-            .iter()
-            .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
-            .collect();
+        let names = |dir: &Path| -> Vec<String> {
+            image_files(dir)
+                .unwrap()
+                .iter()
+                .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+                .collect()
+        };
         assert_eq!(
-            names,
+            names(d.path()),
             ["img_1.jpeg", "img_2.JPG", "img_10.png", "img_100.png"]
         );
         // KITTI's zero-padded names keep their order
@@ -249,13 +251,8 @@ mod tests {
         for i in [10, 9, 0, 100] {
             std::fs::write(k.path().join(format!("{i:06}.png")), b"").unwrap();
         }
-        let names: Vec<String> = image_files(k.path())
-            .unwrap()
-            .iter()
-            .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
-            .collect();
         assert_eq!(
-            names,
+            names(k.path()),
             ["000000.png", "000009.png", "000010.png", "000100.png"]
         );
     }

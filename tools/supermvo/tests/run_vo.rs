@@ -114,9 +114,7 @@ fn black_frame_no_motion_and_unreadable_frame_are_states_not_failures() {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
-    let seq = tmp.path().join("sequences/00");
-    std::fs::create_dir_all(seq.join("image_0")).unwrap();
-    std::fs::copy(src.join("calib.txt"), seq.join("calib.txt")).unwrap();
+    let seq = sequence_with_calibration_of(&src, tmp.path());
     // frames: 0..12 of 00, black, 12 repeated 5 times, unreadable, 13..20
     let mut plan: Vec<Option<usize>> = (0..12).map(Some).collect();
     plan.push(None); // black
@@ -233,9 +231,7 @@ fn a_run_that_poses_almost_nothing_fails_after_writing_what_it_has() {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
-    let seq = tmp.path().join("sequences/00");
-    std::fs::create_dir_all(seq.join("image_0")).unwrap();
-    std::fs::copy(src.join("calib.txt"), seq.join("calib.txt")).unwrap();
+    let seq = sequence_with_calibration_of(&src, tmp.path());
     let mut times = String::new();
     for i in 0..20 {
         image::GrayImage::new(1241, 376)
@@ -381,10 +377,8 @@ fn jpeg_frames_with_unpadded_names_are_read_in_number_order() {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
-    let seq = tmp.path().join("sequences/00");
-    std::fs::create_dir_all(seq.join("image_0")).unwrap();
+    let seq = sequence_with_calibration_of(&src, tmp.path());
     std::fs::create_dir_all(tmp.path().join("poses")).unwrap();
-    std::fs::copy(src.join("calib.txt"), seq.join("calib.txt")).unwrap();
     let n = 25;
     let times: Vec<String> = std::fs::read_to_string(src.join("times.txt"))
         .unwrap()
@@ -471,4 +465,16 @@ fn an_interrupted_run_saves_what_it_has_and_exits_130() {
             traj.lines().count()
         );
     }
+}
+
+/// An empty KITTI-layout sequence `root/sequences/00` (its `image_0/` made) with the
+/// calibration of the sequence `src`; returns its directory.
+fn sequence_with_calibration_of(
+    src: &std::path::Path,
+    root: &std::path::Path,
+) -> std::path::PathBuf {
+    let seq = root.join("sequences/00");
+    std::fs::create_dir_all(seq.join("image_0")).unwrap();
+    std::fs::copy(src.join("calib.txt"), seq.join("calib.txt")).unwrap();
+    seq
 }
