@@ -124,6 +124,12 @@ impl Tracker {
         let (keypoints, landmark) = (cur.len(), vec![None; cur.len()]);
         let init = (&inl[..], self.cfg.min_init_parallax_deg);
         self.insert_keyframe(&kf, cur, (input.index, cur_id), (r, t), landmark, init);
+        // the motion per frame between reference and new keyframe is the first motion model:
+        // should the next frame's PnP on the new (small) map fail, the prediction and the
+        // local-map search still have a pose to start from
+        let gap = input.index.saturating_sub(kf.frame).max(1) as f64;
+        let r_step = supermvo_geometry::so3_exp(&(supermvo_geometry::so3_log(&r_rel) / gap));
+        self.velocity = Some((r_step, t_rel / gap));
         let counts = (m.pairs.len(), est.inlier_count());
         self.output(
             input,
