@@ -67,19 +67,28 @@ pub fn run(args: &ModelsArgs) -> Result<()> {
             if !status.success() {
                 bail!("model fetch failed ({status}); see the messages above");
             }
+            let used = runtime::resolve_library(None);
+            if used != runtime::default_library_path() {
+                outln!(
+                    "note: runs load ONNX Runtime from {} (ORT_DYLIB_PATH), not the copy in the cache; unset ORT_DYLIB_PATH to use the cache's",
+                    used.display()
+                );
+            }
             Ok(())
         }
         ModelsCommand::List => {
+            // the library a run would load, loaded here: a file that exists may still not be
+            // ONNX Runtime, or not this version
             let lib = runtime::resolve_library(None);
-            let state = if lib.is_file() {
-                "present"
-            } else {
-                "missing: run 'supermvo models fetch onnxruntime'"
+            let state = match runtime::init(None) {
+                Ok(_) => "loads".to_string(),
+                Err(e) => format!("unusable: {e}"),
             };
             outln!(
-                "ONNX Runtime {}: {} ({state})",
+                "ONNX Runtime {}: {}, from {} ({state})",
                 runtime::ORT_VERSION,
-                lib.display()
+                lib.display(),
+                ort_source()
             );
             let gpu = runtime::gpu_library_path();
             outln!(
@@ -132,5 +141,13 @@ pub fn run(args: &ModelsArgs) -> Result<()> {
             }
             Ok(())
         }
+    }
+}
+
+/// Where the ONNX Runtime library a run loads comes from.
+fn ort_source() -> &'static str {
+    match std::env::var_os("ORT_DYLIB_PATH") {
+        Some(p) if !p.is_empty() => "ORT_DYLIB_PATH",
+        _ => "the cache (supermvo models fetch onnxruntime)",
     }
 }

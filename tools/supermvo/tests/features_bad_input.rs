@@ -206,3 +206,33 @@ fn cuda_without_a_gpu_runtime_falls_back_to_the_cpu() {
     );
     assert_eq!(cpu, cuda, "the fallback computes the same keypoints");
 }
+
+/// `models list` reports the ONNX Runtime library a run would load, where that choice comes
+/// from, and whether it loads: with ORT_DYLIB_PATH pointing at a file that is not ONNX
+/// Runtime it says so instead of "present", and without it the cached copy loads.
+#[test]
+fn models_list_says_which_runtime_a_run_loads_and_whether_it_loads() {
+    let Some((lib, _)) = cache_models() else {
+        return;
+    };
+    let d = tempfile::tempdir().unwrap();
+    let fake = d.path().join("libonnxruntime.so");
+    std::fs::write(&fake, b"not a shared library").unwrap();
+    let list = |ort: &Path| {
+        let out = Command::new(env!("CARGO_BIN_EXE_supermvo"))
+            .args(["models", "list"])
+            .env("ORT_DYLIB_PATH", ort)
+            .output()
+            .unwrap();
+        assert!(out.status.success());
+        let text = String::from_utf8_lossy(&out.stdout).into_owned();
+        text.lines().next().unwrap_or_default().to_string()
+    };
+    let bad = list(&fake);
+    assert!(
+        bad.contains("from ORT_DYLIB_PATH") && bad.contains("unusable") && !bad.contains("present"),
+        "{bad}"
+    );
+    let good = list(&lib);
+    assert!(good.contains("(loads)"), "{good}");
+}
