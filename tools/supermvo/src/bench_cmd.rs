@@ -36,8 +36,8 @@ enum BenchCommand {
         /// Sequence directories (`.../sequences/NN`).
         #[arg(required = true)]
         sequences: Vec<PathBuf>,
-        /// Keypoints per frame.
-        #[arg(long, default_value_t = 2048)]
+        /// Keypoints per frame, 64-8192.
+        #[arg(long, default_value_t = 2048, value_parser = crate::keypoint_count)]
         top_k: usize,
         /// RANSAC threshold, pixels.
         #[arg(long, default_value_t = 1.0)]

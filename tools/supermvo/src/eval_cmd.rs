@@ -214,9 +214,15 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         }
         gt.stamps = Some(stamps);
     }
+    let estimates: Vec<(String, PathBuf)> = args.est.iter().map(|s| parse_est(s)).collect();
+    // labels name the JSON entries and the figures: two alike would overwrite each other
+    for (i, (label, _)) in estimates.iter().enumerate() {
+        if estimates[..i].iter().any(|(l, _)| l == label) {
+            bail!("two estimates share the label '{label}'; name them with NAME=PATH");
+        }
+    }
     let mut results: Vec<(String, Evaluation)> = Vec::new();
-    for spec in &args.est {
-        let (label, path) = parse_est(spec);
+    for (label, path) in estimates {
         let est = read_trajectory(&path, est_format).context("reading estimate")?;
         let ev = evaluate(&gt, &est, &opts).with_context(|| {
             format!(
@@ -250,9 +256,6 @@ fn write_json(path: &Path, results: &[(String, Evaluation)]) -> Result<()> {
         many => {
             let mut map = serde_json::Map::new();
             for (label, ev) in many {
-                if map.contains_key(label) {
-                    bail!("two estimates share the label '{label}'; name them with NAME=PATH");
-                }
                 map.insert(label.clone(), serde_json::to_value(&ev.report)?);
             }
             serde_json::Value::Object(map)

@@ -15,8 +15,8 @@ pub struct FeaturesArgs {
     /// ONNX model [default: xfeat from the model cache].
     #[arg(long)]
     model: Option<PathBuf>,
-    /// Keep at most this many keypoints.
-    #[arg(long, default_value_t = 2048)]
+    /// Keep at most this many keypoints, 64-8192.
+    #[arg(long, default_value_t = 2048, value_parser = crate::keypoint_count)]
     top_k: usize,
     /// ONNX Runtime intra-op threads.
     #[arg(long, default_value_t = 2)]

@@ -23,6 +23,15 @@ mod run_cmd;
 mod synth_cmd;
 
 use clap::{Parser, Subcommand};
+
+/// `--top-k` of every command: the range the configuration allows (`pipeline.top_k`), so a
+/// value is refused the same way wherever it is typed, naming the flag.
+fn keypoint_count(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(n) if (64..=8192).contains(&n) => Ok(n),
+        _ => Err(format!("'{s}' is not a keypoint count from 64 to 8192")),
+    }
+}
 use std::process::ExitCode;
 
 #[derive(Debug, Parser)]

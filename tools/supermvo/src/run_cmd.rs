@@ -62,8 +62,8 @@ pub struct RunArgs {
     /// [pipeline.device].
     #[arg(long, value_enum)]
     device: Option<crate::features_cmd::DeviceArg>,
-    /// Keypoints per frame [config: pipeline.top_k].
-    #[arg(long)]
+    /// Keypoints per frame, 64-8192 [config: pipeline.top_k].
+    #[arg(long, value_parser = crate::keypoint_count)]
     top_k: Option<usize>,
     /// Keyframes in the local bundle-adjustment window, 0 disables it [pipeline.ba_window].
     #[arg(long)]

@@ -226,3 +226,54 @@ fn a_missing_file_is_one_error_with_the_os_reason_once() {
     );
     assert_eq!(stderr.lines().count(), 1, "{stderr}");
 }
+
+/// Two estimates whose file names give the same label would write the same figure and JSON
+/// entry: refused before anything is written, with the way to name them.
+#[test]
+fn two_estimates_with_one_label_are_refused_before_writing() {
+    let d = tempfile::tempdir().unwrap();
+    let gt = write(d.path(), "gt.txt", &kitti_lines(5));
+    for sub in ["a", "b"] {
+        std::fs::create_dir_all(d.path().join(sub)).unwrap();
+        write(&d.path().join(sub), "trajectory.txt", &kitti_lines(5));
+    }
+    let (a, b) = (
+        d.path().join("a/trajectory.txt"),
+        d.path().join("b/trajectory.txt"),
+    );
+    let plots = d.path().join("plots");
+    common::expect_error(
+        &[
+            "eval",
+            "--gt",
+            gt.to_str().unwrap(),
+            "--est",
+            a.to_str().unwrap(),
+            "--est",
+            b.to_str().unwrap(),
+            "--plot",
+            plots.to_str().unwrap(),
+        ],
+        &["share the label 'trajectory'", "NAME=PATH"],
+    );
+    assert!(!plots.exists(), "nothing written");
+    // named, both are evaluated
+    let (na, nb) = (
+        format!("first={}", a.display()),
+        format!("second={}", b.display()),
+    );
+    let out = common::supermvo(&[
+        "eval",
+        "--gt",
+        gt.to_str().unwrap(),
+        "--est",
+        &na,
+        "--est",
+        &nb,
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

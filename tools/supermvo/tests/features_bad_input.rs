@@ -236,3 +236,22 @@ fn models_list_says_which_runtime_a_run_loads_and_whether_it_loads() {
     let good = list(&lib);
     assert!(good.contains("(loads)"), "{good}");
 }
+
+/// `--top-k` takes the same range in `features` and in `run` (the configuration's), and the
+/// error names the flag that was typed.
+#[test]
+fn top_k_out_of_range_is_refused_alike_by_every_command() {
+    for args in [
+        &["features", "a.png", "b.png", "--top-k", "0"][..],
+        &["run", "seq", "--top-k", "0"][..],
+        &["run", "seq", "--top-k", "10000"][..],
+    ] {
+        let out = common::supermvo(args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert!(
+            err.contains("--top-k") && err.contains("from 64 to 8192"),
+            "{args:?}: {err}"
+        );
+    }
+}
