@@ -160,15 +160,16 @@ impl KittiSequence {
             .unwrap_or_default()
     }
 
+    /// Where the conventional ground-truth file `../../poses/NN.txt` would be (`None` when
+    /// the sequence directory has no grandparent).
+    pub fn ground_truth_candidate(&self) -> Option<PathBuf> {
+        let root = self.dir.parent()?.parent()?;
+        Some(root.join("poses").join(format!("{}.txt", self.name())))
+    }
+
     /// The conventional ground-truth file `../../poses/NN.txt`, if it exists.
     pub fn default_ground_truth(&self) -> Option<PathBuf> {
-        let p = self
-            .dir
-            .parent()?
-            .parent()?
-            .join("poses")
-            .join(format!("{}.txt", self.name()));
-        p.is_file().then_some(p)
+        self.ground_truth_candidate().filter(|p| p.is_file())
     }
 
     /// Reads ground truth (KITTI poses) and attaches this sequence's timestamps; the

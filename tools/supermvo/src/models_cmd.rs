@@ -80,6 +80,11 @@ pub fn run(args: &ModelsArgs) -> Result<()> {
             // the library a run would load, loaded here: a file that exists may still not be
             // ONNX Runtime, or not this version
             let lib = runtime::resolve_library(None);
+            let source = if lib == runtime::default_library_path() {
+                "the cache (supermvo models fetch onnxruntime)"
+            } else {
+                "ORT_DYLIB_PATH"
+            };
             let state = match runtime::init(None) {
                 Ok(_) => "loads".to_string(),
                 Err(e) => format!("unusable: {e}"),
@@ -88,7 +93,7 @@ pub fn run(args: &ModelsArgs) -> Result<()> {
                 "ONNX Runtime {}: {}, from {} ({state})",
                 runtime::ORT_VERSION,
                 lib.display(),
-                ort_source()
+                source
             );
             let gpu = runtime::gpu_library_path();
             outln!(
@@ -141,13 +146,5 @@ pub fn run(args: &ModelsArgs) -> Result<()> {
             }
             Ok(())
         }
-    }
-}
-
-/// Where the ONNX Runtime library a run loads comes from.
-fn ort_source() -> &'static str {
-    match std::env::var_os("ORT_DYLIB_PATH") {
-        Some(p) if !p.is_empty() => "ORT_DYLIB_PATH",
-        _ => "the cache (supermvo models fetch onnxruntime)",
     }
 }

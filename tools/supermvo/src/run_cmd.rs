@@ -182,7 +182,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
     };
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
-    let (traj, mut report) = match args.mode {
+    let (traj, mut report, interrupted) = match args.mode {
         Mode::Inprocess => run_inprocess(args, &cfg, &seq, n)?,
         Mode::Multiprocess => run_multiprocess(args, &cfg, &seq)?,
     };
@@ -234,10 +234,8 @@ pub fn run(args: &RunArgs) -> Result<()> {
         (None, _) => outln!(
             "{}: not evaluated: no ground truth at {} (give --gt POSES.txt)",
             seq.name(),
-            seq.dir
-                .join("../../poses")
-                .join(format!("{}.txt", seq.name()))
-                .display()
+            seq.ground_truth_candidate()
+                .map_or_else(|| "../../poses".into(), |p| p.display().to_string())
         ),
     }
     std::fs::write(
@@ -245,7 +243,6 @@ pub fn run(args: &RunArgs) -> Result<()> {
         serde_json::to_string_pretty(&report)?,
     )?;
     outln!("results in {}", args.out.display());
-    let interrupted = report["interrupted_at_frame"].is_u64() || report["interrupted"] == true;
     if interrupted {
         return Err(Interrupted {
             done: frames,
@@ -281,7 +278,7 @@ fn run_inprocess(
     cfg: &Config,
     seq: &KittiSequence,
     n: usize,
-) -> Result<(Trajectory, serde_json::Value)> {
+) -> Result<(Trajectory, serde_json::Value, bool)> {
     let p = &cfg.pipeline;
     let tracker = Tracker::new(seq.calib, tracking::tracker_config(p));
     let loops = p
@@ -377,14 +374,14 @@ fn run_inprocess(
         "loops": loops,
         "frames_detail": outputs,
     });
-    Ok((traj, report))
+    Ok((traj, report, interrupted_at.is_some()))
 }
 
 fn run_multiprocess(
     args: &RunArgs,
     cfg: &Config,
     seq: &KittiSequence,
-) -> Result<(Trajectory, serde_json::Value)> {
+) -> Result<(Trajectory, serde_json::Value, bool)> {
     // ONNX Runtime and the models, checked here before any stage starts: a missing one is
     // one clear error (as in process) instead of stages failing and being restarted
     drop(
@@ -459,5 +456,5 @@ fn run_multiprocess(
         "metrics": metrics,
         "frames_detail": records,
     });
-    Ok((traj, report))
+    Ok((traj, report, metrics.interrupted))
 }

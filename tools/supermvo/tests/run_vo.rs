@@ -378,22 +378,7 @@ fn jpeg_frames_with_unpadded_names_are_read_in_number_order() {
     }
     let tmp = tempfile::tempdir().unwrap();
     let seq = sequence_with_calibration_of(&src, tmp.path());
-    std::fs::create_dir_all(tmp.path().join("poses")).unwrap();
-    let n = 25;
-    let times: Vec<String> = std::fs::read_to_string(src.join("times.txt"))
-        .unwrap()
-        .lines()
-        .take(n)
-        .map(|l| format!("{l}\n"))
-        .collect();
-    std::fs::write(seq.join("times.txt"), times.concat()).unwrap();
-    let gt: Vec<String> = std::fs::read_to_string(poses)
-        .unwrap()
-        .lines()
-        .take(n)
-        .map(|l| format!("{l}\n"))
-        .collect();
-    std::fs::write(tmp.path().join("poses/00.txt"), gt.concat()).unwrap();
+    let n = times_and_poses_of(&src, &poses, &seq, |i| i < 25);
     for i in 0..n {
         let img = image::open(src.join(format!("image_0/{i:06}.png")))
             .unwrap()
@@ -467,6 +452,30 @@ fn an_interrupted_run_saves_what_it_has_and_exits_130() {
     }
 }
 
+/// Writes `seq`'s `times.txt` and its ground truth `seq/../../poses/00.txt` with the lines of
+/// the frames of `src` (poses in `poses`) that `keep` selects; returns how many.
+fn times_and_poses_of(
+    src: &std::path::Path,
+    poses: &std::path::Path,
+    seq: &std::path::Path,
+    keep: impl Fn(usize) -> bool,
+) -> usize {
+    let select = |text: String| -> String {
+        text.lines()
+            .enumerate()
+            .filter(|(i, _)| keep(*i))
+            .map(|(_, l)| format!("{l}\n"))
+            .collect()
+    };
+    let times = select(std::fs::read_to_string(src.join("times.txt")).unwrap());
+    std::fs::write(seq.join("times.txt"), &times).unwrap();
+    let root = seq.parent().unwrap().parent().unwrap();
+    std::fs::create_dir_all(root.join("poses")).unwrap();
+    let gt = select(std::fs::read_to_string(poses).unwrap());
+    std::fs::write(root.join("poses/00.txt"), gt).unwrap();
+    times.lines().count()
+}
+
 /// An empty KITTI-layout sequence `root/sequences/00` (its `image_0/` made) with the
 /// calibration of the sequence `src`; returns its directory.
 fn sequence_with_calibration_of(
@@ -497,14 +506,7 @@ fn the_frame_after_an_initialisation_is_tracked_at_5_hz() {
     }
     let tmp = tempfile::tempdir().unwrap();
     let seq = sequence_with_calibration_of(&src, tmp.path());
-    std::fs::create_dir_all(tmp.path().join("poses")).unwrap();
-    let every_2nd =
-        |text: String| -> String { text.lines().step_by(2).map(|l| format!("{l}\n")).collect() };
-    let times = every_2nd(std::fs::read_to_string(src.join("times.txt")).unwrap());
-    std::fs::write(seq.join("times.txt"), &times).unwrap();
-    let gt = every_2nd(std::fs::read_to_string(poses).unwrap());
-    std::fs::write(tmp.path().join("poses/00.txt"), gt).unwrap();
-    let n = times.lines().count();
+    let n = times_and_poses_of(&src, &poses, &seq, |i| i % 2 == 0);
     for j in 0..n {
         std::fs::copy(
             src.join(format!("image_0/{:06}.png", 2 * j)),
