@@ -11,9 +11,13 @@ For each run it reads `report.json` and prints: frames, frames posed (and the sh
 RMSE after Sim(3), median tracked landmarks per posed frame (the pose's inliers), the KITTI
 metric where the ground truth covers 100 m, and the median time per frame. Any further
 arguments go to every `supermvo run` (for example `--frontend orb`), and `--bin` runs
-another build, so two builds can be compared on the same table in one script.
+another build. `--peer ARGS` runs every sequence a second time, right after, with those
+arguments instead (for example `--peer=--match-every-frame`, the first round's tracker), and
+adds the peer's posed frames, APE and time per frame and the ratio of the times: a speed
+comparison on the same machine in the same minutes.
 
-    python3 tools/clip_study.py [--strides 1,2,3] [--clips 00,03] [--json out.json] [-- ARGS]
+    python3 tools/clip_study.py [--strides 1,2,3] [--clips 00,03] [--json out.json]
+                                [--peer=ARGS] [-- ARGS]
 
 A full table takes about 15 minutes on a 2-core machine (learned front end).
 """
@@ -100,6 +104,7 @@ def main():
     ap.add_argument("--strides", default="1,2,3")
     ap.add_argument("--clips", default=",".join(CLIPS))
     ap.add_argument("--json", help="also write the rows here")
+    ap.add_argument("--peer", help="arguments of a second run of every sequence (space-separated)")
     ap.add_argument("extra", nargs="*", help="arguments passed on to every `supermvo run`")
     args = ap.parse_args()
     if not os.path.isdir(KITTI):
@@ -109,8 +114,12 @@ def main():
     strides = [int(s) for s in args.strides.split(",")]
     clips = [c for c in args.clips.split(",") if os.path.isdir(os.path.join(KITTI, "sequences", c))]
     rows = []
-    print(f"{'run':<14} {'frames':>6} {'posed':>11} {'APE (m)':>8} {'tracked':>7} "
-          f"{'t_err %':>7} {'r_err':>6} {'ms/frame':>8}", flush=True)
+    peer = args.peer.split() if args.peer is not None else None
+    header = (f"{'run':<14} {'frames':>6} {'posed':>11} {'APE (m)':>8} {'tracked':>7} "
+              f"{'t_err %':>7} {'r_err':>6} {'ms/frame':>8}")
+    if peer is not None:
+        header += f" | {'peer posed':>10} {'peer APE':>8} {'peer ms':>7} {'speed-up':>8}"
+    print(header, flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         for c in clips:
             for s in strides:
@@ -118,15 +127,23 @@ def main():
                 name = c if s == 1 else f"{c}/{s}"
                 r = run_one(args.bin, seq, os.path.join(tmp, "out", f"{c}_{s}"), args.extra)
                 r.update(clip=c, stride=s)
+                if peer is not None:
+                    out = os.path.join(tmp, "out", f"{c}_{s}_peer")
+                    r["peer"] = run_one(args.bin, seq, out, args.extra + peer)
                 rows.append(r)
                 share = 100.0 * r["posed"] / max(r["frames"], 1)
                 fmt = lambda v, f: "–" if v is None else format(v, f)
                 print(f"{name:<14} {r['frames']:>6} {r['posed']:>4} ({share:5.1f}%) {fmt(r['ape'], '8.3f')} "
                       f"{r['tracked_median']:>7.0f} {fmt(r['t_err'], '7.2f')} {fmt(r['r_err'], '6.2f')} "
-                      f"{r['ms']:>8.1f}", flush=True)
+                      f"{r['ms']:>8.1f}", end="")
+                if peer is not None:
+                    q = r["peer"]
+                    print(f" | {q['posed']:>10} {fmt(q['ape'], '8.3f')} {q['ms']:>7.1f} "
+                          f"{q['ms'] / r['ms']:>7.2f}x", end="")
+                print(flush=True)
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"extra": args.extra, "bin": args.bin, "rows": rows}, f, indent=1)
+            json.dump({"extra": args.extra, "peer": peer, "bin": args.bin, "rows": rows}, f, indent=1)
 
 
 if __name__ == "__main__":

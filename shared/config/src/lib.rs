@@ -157,6 +157,10 @@ pub struct PipelineConfig {
     /// against it (at its own scale) for at most this many frames in a row before a new map
     /// is started; 0 starts one at once, [0, 100].
     pub relocalisation_frames: usize,
+    /// Run the matcher on every frame against the reference keyframe (the first round's
+    /// tracker). false (the default): only for initialisation, new keyframes and after a
+    /// lost frame; the frames between keyframes are tracked by projecting the map.
+    pub match_every_frame: bool,
     /// Restarts allowed per stage before the supervisor gives up, [0, 100].
     pub max_restarts: u32,
     /// First restart delay in milliseconds, doubled on each further restart of a stage, [0, 10000].
@@ -210,6 +214,7 @@ impl Default for PipelineConfig {
             ba_window: 6,
             keyframe_ratio: 0.0,
             relocalisation_frames: 5,
+            match_every_frame: false,
             max_restarts: 5,
             restart_backoff_ms: 100,
             deadline_ms: 20_000,

@@ -190,6 +190,17 @@ pub struct MatchEntry {
     pub score: f32,
 }
 
+/// The tracker asks for the matches of a frame after all (payload of the `match_requests`
+/// service; the header names the frame): it could not track it by projection alone, or the
+/// frame becomes a keyframe and its new landmarks come from the matches.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("supermvo::MatchRequest")]
+pub struct MatchRequest {
+    /// Frame index of the reference keyframe to match against.
+    pub reference: i64,
+}
+
 /// The tracker's result for one frame (payload of the `poses` service).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
@@ -213,6 +224,9 @@ pub struct PoseMsg {
     pub landmarks: u64,
     /// Frame index of the reference keyframe the next frame is matched against, or -1.
     pub reference: i64,
+    /// 1 when the next frame must be matched against `reference`; 0 when the tracker
+    /// tracks it by projection (the matching stage then forwards it without matches).
+    pub match_next: u32,
     /// Map scale (median landmark depth at initialisation), or 0 before initialisation.
     pub scale: f64,
 }
@@ -419,6 +433,8 @@ pub enum Topic {
     Matches,
     /// `PoseMsg`, tracking → matching (reference), back end, ingest (credits), monitors.
     Poses,
+    /// `MatchRequest`, tracking → matching: a frame the tracker needs matched after all.
+    MatchRequests,
     /// `BackendState`, back end → tracking (restore), monitors.
     Backend,
     /// `Progress`, every stage → supervisor and monitors.
@@ -429,11 +445,12 @@ pub enum Topic {
 
 impl Topic {
     /// Every topic.
-    pub const ALL: [Topic; 7] = [
+    pub const ALL: [Topic; 8] = [
         Topic::Frames,
         Topic::Features,
         Topic::Matches,
         Topic::Poses,
+        Topic::MatchRequests,
         Topic::Backend,
         Topic::Progress,
         Topic::Control,
@@ -446,6 +463,7 @@ impl Topic {
             Topic::Features => "features",
             Topic::Matches => "matches",
             Topic::Poses => "poses",
+            Topic::MatchRequests => "match_requests",
             Topic::Backend => "backend",
             Topic::Progress => "progress",
             Topic::Control => "control",
@@ -516,7 +534,11 @@ impl Services {
     fn qos(topic: Topic) -> Qos {
         match topic {
             // data: lossless, back-pressure instead of overflow; history for restarts
-            Topic::Frames | Topic::Features | Topic::Matches | Topic::Poses => Qos {
+            Topic::Frames
+            | Topic::Features
+            | Topic::Matches
+            | Topic::Poses
+            | Topic::MatchRequests => Qos {
                 history: HISTORY,
                 buffer: 4 * HISTORY,
                 safe_overflow: false,

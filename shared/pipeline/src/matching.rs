@@ -2,6 +2,9 @@
 //!
 //! Which frame is the reference is the tracker's decision for the previous frame, read from
 //! the `poses` service; so matching of frame `s` waits for the tracker's result of `s - 1`.
+//! That decision also says whether frame `s` is matched at once: otherwise the tracker
+//! first tries it by projection, and either decides it without matches (nothing is sent
+//! for it) or asks for them on `match_requests`.
 //! Features are kept by sequence number until they can no longer become or be the reference.
 
 use crate::common::{receive_features, send_slice, stamp, StageArgs, StageContext};
@@ -17,7 +20,7 @@ use supermvo_inference::{models, Features, Matcher};
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
 use supermvo_messages::iceoryx2::prelude::*;
 use supermvo_messages::{
-    now_ns, FrameHeader, MatchEntry, MessageError, PoseMsg, StageKind, Status, Topic,
+    now_ns, FrameHeader, MatchEntry, MatchRequest, MessageError, PoseMsg, StageKind, Status, Topic,
 };
 
 /// The matcher the daemon and `supermvo run --mode inprocess` both use.
@@ -81,6 +84,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
     let mut ctx = StageContext::new(StageKind::Matching, args.worker, &cfg)?;
     let features = ctx.slice_subscriber::<f32>(Topic::Features)?;
     let poses = ctx.header_subscriber::<PoseMsg>(Topic::Poses)?;
+    let requests = ctx.header_subscriber::<MatchRequest>(Topic::MatchRequests)?;
     let publisher = ctx
         .services
         .slice_topic::<MatchEntry>(&ctx.node, Topic::Matches, false)?
@@ -92,21 +96,29 @@ pub fn run(args: &StageArgs) -> Result<()> {
         .create()
         .map_err(|e| MessageError::ipc("matches publisher", e))?;
 
-    // reference after each tracked seq
-    let mut refs: BTreeMap<u64, Option<u64>> = BTreeMap::new();
-    let drain_poses = |refs: &mut BTreeMap<u64, Option<u64>>| -> Result<()> {
+    // after each tracked seq: the reference, and whether the next frame is matched to it
+    let mut refs: BTreeMap<u64, (Option<u64>, bool)> = BTreeMap::new();
+    let drain_poses = |refs: &mut BTreeMap<u64, (Option<u64>, bool)>| -> Result<()> {
         while let Some(s) = poses.receive().map_err(|e| MessageError::ipc("poses", e))? {
-            let r = s.payload().reference;
-            refs.insert(s.user_header().seq, (r >= 0).then_some(r as u64));
+            let (r, wanted) = (s.payload().reference, s.payload().match_next != 0);
+            refs.insert(s.user_header().seq, ((r >= 0).then_some(r as u64), wanted));
         }
         Ok(())
     };
+    // frames the tracker asked to have matched after all, with their reference
+    let mut asked: BTreeMap<u64, i64> = BTreeMap::new();
     let mut inbox: Inbox<Option<Features>> = Inbox::new(0, 1);
     let mut cache: BTreeMap<u64, Features> = BTreeMap::new();
     let gap = Duration::from_millis(cfg.gap_timeout_ms);
     ctx.started();
     while ctx.wait() {
         drain_poses(&mut refs)?;
+        while let Some(s) = requests
+            .receive()
+            .map_err(|e| MessageError::ipc("match requests", e))?
+        {
+            asked.insert(s.user_header().seq, s.payload().reference);
+        }
         // Whenever the tracker has decided on a frame this process still expects (a restart:
         // the tracker's history may reach it only after it came up), continue after the
         // tracker's last decision instead of waiting for one that was already made.
@@ -120,12 +132,12 @@ pub fn run(args: &StageArgs) -> Result<()> {
         let _ = publisher.update_connections();
         loop {
             let next = inbox.next();
-            let reference = if next == 0 {
-                Some(None)
+            let decision = if next == 0 {
+                Some((None, true))
             } else {
                 refs.get(&(next - 1)).copied()
             };
-            let Some(reference) = reference else {
+            let Some((reference, wanted)) = decision else {
                 break; // waiting for the tracker's decision on the previous frame
             };
             if !inbox.ready() {
@@ -138,12 +150,26 @@ pub fn run(args: &StageArgs) -> Result<()> {
                 }
                 break;
             }
+            let has_features = inbox.peek().is_some_and(|(_, f, _)| f.is_some());
+            let reference = match (wanted, asked.get(&next)) {
+                (true, _) => reference,
+                // the tracker tried this frame by projection and asks for its matches
+                (false, Some(&r)) => (r >= 0).then_some(r as u64),
+                // tracked without matches: nothing to send, only its features to keep
+                (false, None) if refs.contains_key(&next) || !has_features => None,
+                (false, None) => break, // the tracker has not decided yet
+            };
+            let skipped = !wanted && has_features && !asked.contains_key(&next);
             let Some((h_in, f, _received)) = inbox.pop() else {
                 break;
             };
             // processing time, not the wait for the tracker's decision
             let t_in = now_ns();
             let h = match (f, reference) {
+                (Some(f), _) if skipped => {
+                    cache.insert(h_in.seq, f);
+                    h_in.forward(Status::Ok)
+                }
                 (Some(f), None) => {
                     let mut h = h_in.forward(Status::Ok);
                     h.reference = -1;
@@ -189,13 +215,13 @@ pub fn run(args: &StageArgs) -> Result<()> {
             // keep only what can still be a reference: the current one and later frames
             let keep_from = refs
                 .get(&h.seq)
-                .copied()
-                .flatten()
+                .and_then(|(r, _)| *r)
                 .or(reference)
                 .unwrap_or(h.seq)
                 .min(h.seq);
             cache = cache.split_off(&keep_from);
             refs = refs.split_off(&h.seq.saturating_sub(1));
+            asked = asked.split_off(&(h.seq + 1));
         }
         ctx.heartbeat_if_idle();
     }

@@ -16,8 +16,8 @@ use supermvo_config::Config;
 use supermvo_messages::iceoryx2::node::NodeView;
 use supermvo_messages::iceoryx2::prelude::*;
 use supermvo_messages::{
-    create_node, BackendState, FrameHeader, Ipc, MatchEntry, MessageError, PoseMsg, Progress,
-    ProgressEvent, Services, StageKind, Status, Topic,
+    create_node, BackendState, FrameHeader, Ipc, MatchEntry, MatchRequest, MessageError, PoseMsg,
+    Progress, ProgressEvent, Services, StageKind, Status, Topic,
 };
 
 /// What the supervisor runs.
@@ -180,6 +180,11 @@ type Factories = (
     >,
     supermvo_messages::iceoryx2::service::port_factory::publish_subscribe::PortFactory<
         Ipc,
+        MatchRequest,
+        FrameHeader,
+    >,
+    supermvo_messages::iceoryx2::service::port_factory::publish_subscribe::PortFactory<
+        Ipc,
         BackendState,
         (),
     >,
@@ -263,6 +268,7 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
         services.slice_topic::<f32>(&node, Topic::Features, true)?,
         services.slice_topic::<MatchEntry>(&node, Topic::Matches, true)?,
         services.header_topic::<PoseMsg>(&node, Topic::Poses, true)?,
+        services.header_topic::<MatchRequest>(&node, Topic::MatchRequests, true)?,
         services.plain_topic::<BackendState>(&node, Topic::Backend, true)?,
     );
     let progress_service = services.plain_topic::<Progress>(&node, Topic::Progress, true)?;

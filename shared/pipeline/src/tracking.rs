@@ -14,7 +14,8 @@ use supermvo_inference::{Features, Matches};
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
 use supermvo_messages::iceoryx2::prelude::*;
 use supermvo_messages::{
-    now_ns, BackendState, FrameHeader, MatchEntry, MessageError, PoseMsg, StageKind, Status, Topic,
+    now_ns, BackendState, FrameHeader, MatchEntry, MatchRequest, MessageError, PoseMsg, StageKind,
+    Status, Topic,
 };
 use supermvo_vo::loops::{LoopCloser, LoopConfig};
 use supermvo_vo::pipeline::close_loops;
@@ -26,6 +27,7 @@ pub fn tracker_config(cfg: &PipelineConfig) -> TrackerConfig {
         local_ba_window: cfg.ba_window,
         keyframe_ratio: cfg.keyframe_ratio,
         relocalisation_frames: cfg.relocalisation_frames,
+        match_every_frame: cfg.match_every_frame,
         ..TrackerConfig::default()
     }
     .with_seed(cfg.seed);
@@ -65,6 +67,7 @@ pub fn pose_msg(o: &FrameOutput) -> PoseMsg {
         inliers: o.inliers as u32,
         landmarks: o.landmarks as u64,
         reference: o.reference.map_or(-1, |r| r as i64),
+        match_next: o.match_next as u32,
         scale: o.scale.unwrap_or(0.0),
     }
 }
@@ -105,6 +108,13 @@ pub fn run(args: &StageArgs) -> Result<()> {
         .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
         .create()
         .map_err(|e| MessageError::ipc("poses publisher", e))?;
+    let requests = ctx
+        .services
+        .header_topic::<MatchRequest>(&ctx.node, Topic::MatchRequests, false)?
+        .publisher_builder()
+        .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
+        .create()
+        .map_err(|e| MessageError::ipc("match requests publisher", e))?;
 
     // restore: continue after what the back end has recorded
     let mut start = 0;
@@ -127,6 +137,8 @@ pub fn run(args: &StageArgs) -> Result<()> {
     let mut feats: Inbox<Option<Features>> = Inbox::new(start, 1);
     let mut pairs: Inbox<Vec<MatchEntry>> = Inbox::new(start, 1);
     let gap = Duration::from_millis(cfg.gap_timeout_ms);
+    // the frame whose matches were last asked for
+    let mut requested = None;
     ctx.started();
     while ctx.wait() {
         receive_features(&features, &mut feats)?;
@@ -139,7 +151,33 @@ pub fn run(args: &StageArgs) -> Result<()> {
             pairs.insert(h, s.payload().to_vec(), now_ns());
         }
         let _ = publisher.update_connections();
+        let _ = requests.update_connections();
         loop {
+            let untried = |(fh, _, _): &&(FrameHeader, Option<Features>, u64)| {
+                fh.status() == Status::Ok && requested != Some(fh.seq)
+            };
+            if let Some((fh, f, _)) = feats.peek().filter(untried) {
+                let (fh, t_in) = (*fh, now_ns());
+                if let Some(out) = f
+                    .as_ref()
+                    .and_then(|f| tracker.track_without_matches(frame_meta(&fh), f))
+                {
+                    // tracked by projection: the matching stage sends nothing for it
+                    feats.pop();
+                    pairs.reset_to(fh.seq + 1);
+                    if let Some(l) = loops.as_mut() {
+                        close_loops(l, &mut tracker, &out);
+                    }
+                    let h = publish(&publisher, fh.forward(Status::Ok), pose_msg(&out))?;
+                    ctx.frame_done(&h, t_in, feats.len());
+                    continue;
+                }
+                // matched after all (or the matching stage may not know yet that it must,
+                // after a restart): ask; it ignores requests for what it matches anyway
+                let reference = tracker.reference().map_or(-1, |(r, _)| r as i64);
+                request(&requests, fh, reference)?;
+                requested = Some(fh.seq);
+            }
             if !(feats.ready() && pairs.ready()) {
                 let expired = feats.gap_expired(gap) || pairs.gap_expired(gap);
                 if expired {
@@ -170,11 +208,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
                                 scores: m.iter().map(|e| e.score).collect(),
                             }
                         });
-                    let meta = FrameMeta {
-                        index: fh.seq as usize,
-                        stamp: fh.stamp,
-                    };
-                    let out = tracker.step(meta, f, m.as_ref());
+                    let out = tracker.step(frame_meta(&fh), f, m.as_ref());
                     if let Some(l) = loops.as_mut() {
                         close_loops(l, &mut tracker, &out);
                     }
@@ -252,8 +286,34 @@ fn no_frame(tracker: &Tracker) -> PoseMsg {
     PoseMsg {
         state: 3,
         reference: tracker.reference().map_or(-1, |(r, _)| r as i64),
+        match_next: tracker.wants_matches() as u32,
         ..Default::default()
     }
+}
+
+fn frame_meta(h: &FrameHeader) -> FrameMeta {
+    FrameMeta {
+        index: h.seq as usize,
+        stamp: h.stamp,
+    }
+}
+
+type RequestPublisher = supermvo_messages::iceoryx2::port::publisher::Publisher<
+    supermvo_messages::Ipc,
+    MatchRequest,
+    FrameHeader,
+>;
+
+/// Asks the matching stage for the matches of the frame of `h` to keyframe `reference`.
+fn request(p: &RequestPublisher, h: FrameHeader, reference: i64) -> Result<()> {
+    let s = p
+        .loan_uninit()
+        .map_err(|e| MessageError::ipc("loaning a match request", e))?;
+    let mut s = s.write_payload(MatchRequest { reference });
+    *s.user_header_mut() = h;
+    s.send()
+        .map_err(|e| MessageError::ipc("sending a match request", e))?;
+    Ok(())
 }
 
 type PosePublisher = supermvo_messages::iceoryx2::port::publisher::Publisher<

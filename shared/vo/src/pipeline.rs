@@ -72,15 +72,14 @@ impl Stage for VoPipeline {
 
     fn process(&mut self, input: FrameInput) -> Result<FrameOutput, InferenceError> {
         let cur = self.extractor.extract(&input.image)?;
-        let matches = match self.tracker.reference() {
-            Some((_, reference)) => Some(self.matcher.match_features(reference, &cur)?),
-            None => None,
-        };
         let meta = FrameMeta {
             index: input.index,
             stamp: input.stamp,
         };
-        let out = self.tracker.step(meta, cur, matches.as_ref());
+        let matcher = &mut self.matcher;
+        let out = self.tracker.track_frame(meta, cur, |reference, cur| {
+            matcher.match_features(reference, cur)
+        })?;
         if let Some(loops) = self.loops.as_mut() {
             close_loops(loops, &mut self.tracker, &out);
         }

@@ -191,6 +191,18 @@ fn run_with(
     cfg: TrackerConfig,
     drive: Drive,
 ) -> Vec<(Option<Vec3>, Vec3)> {
+    run_counted(seed, noise_px, outliers, cfg, drive).0
+}
+
+/// [`run_with`], also counting the frames for which the tracker asked for matches.
+fn run_counted(
+    seed: u64,
+    noise_px: f64,
+    outliers: f64,
+    cfg: TrackerConfig,
+    drive: Drive,
+) -> (Vec<(Option<Vec3>, Vec3)>, usize) {
+    let mut matched = 0;
     let mut rng = Rng(0x9e37_79b9_7f4a_7c15 ^ seed.wrapping_mul(0x0123_4567));
     let mut match_rng = Rng(12345 + seed);
     let s = scene(&mut rng, drive);
@@ -202,7 +214,20 @@ fn run_with(
         if (drive.blind.0..drive.blind.1).contains(&k) {
             (f.keypoints, f.scores, f.descriptors, ids) = Default::default();
         }
+        let meta = FrameMeta {
+            index: k,
+            stamp: k as f64 * 0.1,
+        };
+        if let Some(o) = tracker.track_without_matches(meta, &f) {
+            ids_of.insert(k, ids);
+            out.push((
+                o.pose.map(|p| Vec3::new(p[3], p[7], p[11])),
+                path_with(k, drive).0,
+            ));
+            continue;
+        }
         let matches = tracker.reference().map(|(reference, _)| {
+            matched += 1;
             let at: std::collections::HashMap<usize, usize> =
                 ids.iter().enumerate().map(|(j, &i)| (i, j)).collect();
             let pairs: Vec<(usize, usize)> = ids_of[&reference]
@@ -223,15 +248,11 @@ fn run_with(
             }
         });
         ids_of.insert(k, ids);
-        let meta = FrameMeta {
-            index: k,
-            stamp: k as f64 * 0.1,
-        };
         let o = tracker.step(meta, f, matches.as_ref());
         let est = o.pose.map(|p| Vec3::new(p[3], p[7], p[11]));
         out.push((est, path_with(k, drive).0));
     }
-    out
+    (out, matched)
 }
 
 /// Estimated / true distance over consecutive 10-frame steps, from 5 frames after the
@@ -276,6 +297,31 @@ fn one_scale_through_a_turn_on_synthetic_features() {
         assert!(steps.len() >= 14, "scene {seed}: {} steps", steps.len());
         let worst = worst_change(&steps);
         assert!(worst < 0.02, "scene {seed}: scale changed by {worst:.4}");
+    }
+}
+
+/// The matcher runs where geometry cannot guide: the frames between keyframes are tracked
+/// by projecting the last frame's landmarks, so it runs on well under all frames (measured:
+/// 55 of 160 on each scene), against every frame but the first with `match_every_frame`; the scale holds
+/// within 2 % either way.
+#[test]
+fn frames_between_keyframes_are_tracked_without_the_matcher() {
+    for (every, most) in [(false, 0.5), (true, 1.0)] {
+        let cfg = TrackerConfig {
+            match_every_frame: every,
+            ..TrackerConfig::default()
+        };
+        for seed in 0..3 {
+            let (traj, matched) = run_counted(seed, 0.5, 0.1, cfg.clone(), Drive::default());
+            let share = matched as f64 / FRAMES as f64;
+            let worst = worst_change(&scale_steps(&traj));
+            println!("match_every_frame {every}, scene {seed}: {matched} of {FRAMES} matched, scale within {worst:.4}");
+            assert!(share <= most, "scene {seed}: {matched} frames matched");
+            if every {
+                assert_eq!(matched, FRAMES - 1, "scene {seed}");
+            }
+            assert!(worst < 0.02, "scene {seed}: scale changed by {worst:.4}");
+        }
     }
 }
 

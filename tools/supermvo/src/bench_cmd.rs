@@ -523,20 +523,18 @@ fn tracking(
         let cur = extractor.extract(&image)?;
         extract_ms.push(s.elapsed().as_secs_f64() * 1e3);
         let reference = tracker.reference().map(|(f, _)| f);
-        let matches = match tracker.reference() {
-            Some((_, r)) => {
-                let s = Instant::now();
-                let m = matcher.match_features(r, &cur)?;
-                match_ms.push(s.elapsed().as_secs_f64() * 1e3);
-                Some(m)
-            }
-            None => None,
-        };
         let meta = FrameMeta {
             index: i,
             stamp: seq.times[i],
         };
-        tracker.step(meta, cur.clone(), matches.as_ref());
+        let mut matches = None;
+        tracker.track_frame(meta, cur.clone(), |r, c| {
+            let s = Instant::now();
+            let m = matcher.match_features(r, c)?;
+            match_ms.push(s.elapsed().as_secs_f64() * 1e3);
+            matches = Some(m.clone());
+            Ok::<_, anyhow::Error>(m)
+        })?;
         recorded.push(Recorded {
             meta,
             features: cur,
@@ -559,7 +557,14 @@ fn tracking(
             }
             let features = r.features.clone();
             let s = Instant::now();
-            let out = tracker.step(r.meta, features, r.matches.as_ref());
+            let out = tracker.track_frame(r.meta, features, |_, _| {
+                r.matches.clone().ok_or_else(|| {
+                    anyhow::anyhow!(
+                        "frame {}: the replayed tracker needs matches the recorded run did not (not deterministic)",
+                        r.meta.index
+                    )
+                })
+            })?;
             let ms = s.elapsed().as_secs_f64() * 1e3;
             step_ms.push(ms);
             if out.keyframe {

@@ -76,6 +76,10 @@ pub struct RunArgs {
     /// started; 0 starts one at once [pipeline.relocalisation_frames].
     #[arg(long)]
     relocalisation_frames: Option<usize>,
+    /// Run the matcher on every frame, not only for keyframes (the first round's tracker)
+    /// [pipeline.match_every_frame = true].
+    #[arg(long)]
+    match_every_frame: bool,
     /// Seed of the tracker's RANSAC sampling; 0 gives the reported runs [pipeline.seed].
     #[arg(long)]
     seed: Option<u64>,
@@ -122,6 +126,9 @@ impl RunArgs {
         }
         if let Some(v) = self.relocalisation_frames {
             p.relocalisation_frames = v;
+        }
+        if self.match_every_frame {
+            p.match_every_frame = true;
         }
         if let Some(v) = self.max_frames {
             p.max_frames = v;

@@ -51,6 +51,9 @@ pub struct FrameOutput {
     pub landmarks: usize,
     /// Frame index of the reference keyframe the next frame is matched against.
     pub reference: Option<usize>,
+    /// Whether the next frame must come with the matcher's matches to `reference`
+    /// ([`crate::tracker::Tracker::wants_matches`]); without, it is tracked by projection.
+    pub match_next: bool,
     /// Scale of the map (median landmark depth at initialisation), once initialised.
     pub scale: Option<f64>,
 }

@@ -1,5 +1,7 @@
-//! The local-map search by projection: landmarks the keyframe matches did not reach are
-//! projected into the frame and paired with the nearest free keypoint by descriptor.
+//! Matching by projection: landmarks are projected into the frame at a predicted pose and
+//! paired with the nearest free keypoint by descriptor. It serves the local-map search
+//! (landmarks the keyframe matches did not reach) and tracking between keyframes (the last
+//! frame's landmarks, with that frame's descriptors).
 
 use super::Tracker;
 use supermvo_geometry::{Mat3, Vec3};
@@ -18,6 +20,29 @@ impl Tracker {
         taken: &[bool],
         skip: &std::collections::BTreeSet<usize>,
         radius: f64,
+    ) -> Vec<(usize, usize)> {
+        let candidates = self
+            .map
+            .landmarks
+            .iter()
+            .filter(|(id, _)| !skip.contains(id))
+            .map(|(&id, lm)| (id, &lm.p, &lm.desc[..]));
+        let limits = (radius, self.cfg.map_search_ratio);
+        self.match_by_projection(cur, (r, t), taken, candidates, limits)
+    }
+
+    /// Pairs each candidate `(landmark id, world point, descriptor)` projected at
+    /// `T_cam_world = (r, t)` with the free keypoint (`taken` false) within `radius` pixels
+    /// whose descriptor is nearest, when that distance passes the threshold and is below
+    /// `ratio` times the second nearest. Each keypoint keeps its nearest landmark. Returns
+    /// `(keypoint, landmark id)` pairs in keypoint order.
+    pub(crate) fn match_by_projection<'a>(
+        &self,
+        cur: &Features,
+        (r, t): (&Mat3, &Vec3),
+        taken: &[bool],
+        candidates: impl Iterator<Item = (usize, &'a Vec3, &'a [f32])>,
+        (radius, ratio): (f64, f32),
     ) -> Vec<(usize, usize)> {
         let (w, h) = cur.image_size;
         if radius <= 0.0 || cur.is_empty() || w == 0 || h == 0 {
@@ -45,11 +70,11 @@ impl Tracker {
         }
         let c = &self.calib;
         let mut best_for: Vec<Option<(f32, usize)>> = vec![None; cur.len()];
-        for (&id, lm) in &self.map.landmarks {
-            if skip.contains(&id) || lm.desc.len() != cur.dim {
+        for (id, p, desc) in candidates {
+            if desc.len() != cur.dim {
                 continue;
             }
-            let q = r * lm.p + t;
+            let q = r * p + t;
             if q.z <= 1e-6 {
                 continue;
             }
@@ -68,8 +93,7 @@ impl Tracker {
                         if (kp[0] as f64 - u).hypot(kp[1] as f64 - v) > radius {
                             continue;
                         }
-                        let d =
-                            supermvo_inference::descriptor_distance(&lm.desc, cur.descriptor(i));
+                        let d = supermvo_inference::descriptor_distance(desc, cur.descriptor(i));
                         if d < best.0 {
                             second = best.0;
                             best = (d, i);
@@ -80,10 +104,7 @@ impl Tracker {
                 }
             }
             let (d, i) = best;
-            if i == usize::MAX
-                || d > self.cfg.map_search_max_distance
-                || d >= self.cfg.map_search_ratio * second
-            {
+            if i == usize::MAX || d > self.cfg.map_search_max_distance || d >= ratio * second {
                 continue;
             }
             if best_for[i].is_none_or(|(d0, _)| d < d0) {

@@ -1,30 +1,37 @@
-//! The monocular tracker: two-view initialisation; PnP tracking against the reference
-//! keyframe's landmarks followed by a search of the local map by projection (or, when the
-//! keyframe's landmarks fail, a constant-velocity prediction); keyframes whose unmatched
+//! The monocular tracker: two-view initialisation; between keyframes, tracking of the last
+//! frame's landmarks found by projection at the constant-velocity prediction; for keyframes
+//! (and frames that projection does not track), PnP against the reference keyframe's
+//! landmarks through the matcher's matches (or, when those fail, the prediction); either
+//! way followed by a search of the local map by projection; keyframes whose unmatched
 //! matches extend pending tracks until they triangulate with enough parallax; a local
 //! bundle adjustment with older keyframes as fixed anchors; after a blind frame (too few
 //! keypoints) the next frame is tracked against the map kept for it (relocalisation), and
 //! any other failure re-initialises.
 //!
-//! The tracker's own matching (the local-map search) is a descriptor comparison within a
-//! few pixels of a projection, done here because it needs the map; the networks' matches to
-//! the reference keyframe still come from outside.
+//! The tracker's own matching (by projection) is a descriptor comparison within a few
+//! pixels of a projection, done here because it needs the map; the networks' matches to
+//! the reference keyframe come from outside.
 //!
 //! Frames: `T_cam_world` maps world points into the camera; outputs carry `T_world_cam`.
 //! The world frame is the first keyframe's camera; the scale is fixed by the first
 //! two-view initialisation (unit baseline) and carried by the landmarks afterwards.
 //! A local bundle adjustment refines the last keyframes and their landmarks.
 //!
-//! The tracker neither detects nor matches: each step takes the frame's features and their
-//! matches against the current reference keyframe ([`Tracker::reference`]). In process,
-//! [`crate::pipeline::VoPipeline`] runs extractor, matcher and tracker one after the other; in the daemon the
-//! features and the matches arrive from their own processes, and the results are identical
-//! because the tracker sees exactly the same numbers.
+//! The tracker neither detects nor runs the matcher: a frame is first offered without
+//! matches ([`Tracker::track_without_matches`]: the last frame's landmarks found by
+//! projection, [`projection`]); where that does not suffice or the frame becomes a keyframe,
+//! or where [`Tracker::wants_matches`] says so (initialising, after a loss), it comes with
+//! its matches to the reference keyframe ([`Tracker::reference`], [`Tracker::step`]).
+//! [`Tracker::track_frame`] does both with a matcher callback, as
+//! [`crate::pipeline::VoPipeline`] does in process; in the daemon the matches arrive from the
+//! matching process on request, and the results are identical because the tracker sees
+//! exactly the same numbers.
 //!
 //! Where each part lives: the map it builds ([`crate::map`]), the settings ([`config`]), the
 //! per-frame types ([`frame`]), two-view initialisation ([`initialisation`]), tracking a
-//! frame and the keyframe decision ([`tracking`]), the local-map search by projection
-//! ([`map_search`]) and the local bundle adjustment ([`local_ba`]); this file holds the
+//! frame with matches and the keyframe decision ([`tracking`]), tracking one without
+//! ([`projection`]), matching by projection ([`map_search`]) and the local bundle
+//! adjustment ([`local_ba`]); this file holds the
 //! state machine between them (initialising, tracking, blind frames, starting over).
 
 mod config;
@@ -32,6 +39,7 @@ mod frame;
 mod initialisation;
 mod local_ba;
 mod map_search;
+mod projection;
 mod tracking;
 
 pub use config::TrackerConfig;
@@ -79,6 +87,9 @@ pub struct Tracker {
     /// Scale of the map (median landmark depth at initialisation), to carry across
     /// re-initialisations.
     scale: Option<f64>,
+    /// The landmarks the last frame saw, when it was tracked: what the next frame is
+    /// tracked from by projection when it comes without matches.
+    last_frame: Option<projection::LastFrame>,
 }
 
 impl std::fmt::Debug for Tracker {
@@ -101,6 +112,7 @@ impl Tracker {
             lost_streak: 0,
             last_ba: None,
             scale: None,
+            last_frame: None,
         }
     }
 
@@ -125,6 +137,45 @@ impl Tracker {
         self.keyframe.as_ref().map(|k| (k.frame, &k.features))
     }
 
+    /// Whether the next frame must come with the matcher's matches to [`Tracker::reference`]
+    /// (otherwise [`Tracker::track_without_matches`] is tried first): always with
+    /// `match_every_frame`; otherwise while initialising, after a lost frame, and when there
+    /// is no motion model or too little of the last frame to track by projection.
+    pub fn wants_matches(&self) -> bool {
+        let initialised = self
+            .keyframe
+            .as_ref()
+            .is_some_and(|k| k.landmark.iter().any(|l| l.is_some()));
+        self.cfg.match_every_frame
+            || !initialised
+            || self.lost_streak > 0
+            || self.velocity.is_none()
+            || self
+                .last_frame
+                .as_ref()
+                .is_none_or(|l| l.len() < self.cfg.min_tracked)
+    }
+
+    /// Tracks one frame, calling `matcher(reference, frame)` for its matches to the
+    /// reference keyframe only where they are needed: the in-process form of
+    /// [`Tracker::track_without_matches`] followed, when that declines, by
+    /// [`Tracker::step`].
+    pub fn track_frame<E>(
+        &mut self,
+        meta: FrameMeta,
+        cur: Features,
+        matcher: impl FnOnce(&Features, &Features) -> Result<Matches, E>,
+    ) -> Result<FrameOutput, E> {
+        if let Some(out) = self.track_without_matches(meta, &cur) {
+            return Ok(out);
+        }
+        let matches = match self.reference() {
+            Some((_, reference)) => Some(matcher(reference, &cur)?),
+            None => None,
+        };
+        Ok(self.step(meta, cur, matches.as_ref()))
+    }
+
     /// Restarts from `T_world_cam` with the map scale of an earlier run (a restarted tracking
     /// process continues the trajectory the back end recorded). Clears map and reference.
     pub fn restore(&mut self, t_world_cam: &Pose, scale: Option<f64>) {
@@ -140,6 +191,7 @@ impl Tracker {
         self.map.keyframe_poses.clear();
         self.map.segment_start = 0;
         self.frames_since_keyframe = 0;
+        self.last_frame = None;
     }
 
     /// Moves the whole map (landmarks, keyframe poses, the reference and the last pose) by
@@ -188,6 +240,7 @@ impl Tracker {
             keyframe,
             landmarks: self.map.landmarks.len(),
             reference: None,
+            match_next: true,
             scale: None,
         }
     }
@@ -371,12 +424,24 @@ impl Tracker {
             .keyframe
             .as_ref()
             .is_some_and(|k| k.landmark.iter().any(|l| l.is_some()));
-        let mut out = if initialised {
+        let out = if initialised {
             self.track(&meta, cur, matches)
         } else {
             self.initialise(&meta, cur, matches)
         };
+        if out.pose.is_none() {
+            self.last_frame = None;
+        } else if out.keyframe {
+            self.last_frame = self.keyframe.as_ref().map(projection::LastFrame::keyframe);
+        }
+        self.finish_output(out)
+    }
+
+    /// Adds what the tracker decided for the next frame (reference, whether it must be
+    /// matched) and the map scale to a frame's output.
+    fn finish_output(&self, mut out: FrameOutput) -> FrameOutput {
         out.reference = self.keyframe.as_ref().map(|k| k.frame);
+        out.match_next = self.wants_matches();
         out.scale = self.scale;
         out
     }

@@ -5,6 +5,7 @@
 //! re-observations.
 
 use super::frame::bearing;
+use super::projection::LastFrame;
 use super::{FrameMeta, FrameOutput, Keyframe, Tracker, TrackingState};
 use supermvo_geometry::pnp::{reprojection_sq, solve_pnp_ransac, PnpEstimate};
 use supermvo_geometry::{Mat3, Vec3};
@@ -13,27 +14,28 @@ use supermvo_inference::{Features, Matches};
 /// The frame's matches to landmarks: those through the reference keyframe's matches first,
 /// then those the local-map search found, each with the landmark's position and the
 /// keypoint's bearing.
-struct LandmarkMatches {
+pub(super) struct LandmarkMatches {
     /// `(keypoint of the frame, landmark id)`.
-    pairs: Vec<(usize, usize)>,
-    /// How many of `pairs` (the first ones) come through the keyframe's matches.
-    from_keyframe: usize,
+    pub(super) pairs: Vec<(usize, usize)>,
+    /// How many of `pairs` (the first ones) come through the keyframe's matches (or,
+    /// tracking by projection, from the last frame's landmarks).
+    pub(super) from_keyframe: usize,
     /// Landmark positions, world frame.
-    points: Vec<Vec3>,
+    pub(super) points: Vec<Vec3>,
     /// Keypoint bearings.
-    bearings: Vec<Vec3>,
+    pub(super) bearings: Vec<Vec3>,
 }
 
 /// A frame's pose `T_cam_world` and which landmark matches agree with it (within the PnP
 /// threshold).
-struct PoseFit {
-    r: Mat3,
-    t: Vec3,
-    inlier: Vec<bool>,
+pub(super) struct PoseFit {
+    pub(super) r: Mat3,
+    pub(super) t: Vec3,
+    pub(super) inlier: Vec<bool>,
 }
 
 impl PoseFit {
-    fn tracked(&self) -> usize {
+    pub(super) fn tracked(&self) -> usize {
         self.inlier.iter().filter(|&&x| x).count()
     }
 }
@@ -64,7 +66,8 @@ impl Tracker {
         self.log_tracked(input, m, &matches, &first, &fit);
         self.update_motion_model(input, &fit);
         let tracked = fit.tracked();
-        if !self.needs_keyframe(&kf, tracked) {
+        if !self.needs_keyframe(&kf, tracked, self.frames_since_keyframe) {
+            self.last_frame = Some(LastFrame::tracked(&cur, &matches, &fit));
             let counts = (m.pairs.len(), tracked);
             let pose = Some((fit.r, fit.t));
             let out = self.output(
@@ -111,7 +114,11 @@ impl Tracker {
 
     /// PnP RANSAC on the keyframe's landmark matches; when too few agree, the motion model's
     /// prediction with no inliers (`None` without a motion model either).
-    fn first_pose(&self, input: &FrameMeta, lm: &LandmarkMatches) -> Option<PnpEstimate> {
+    pub(super) fn first_pose(
+        &self,
+        input: &FrameMeta,
+        lm: &LandmarkMatches,
+    ) -> Option<PnpEstimate> {
         solve_pnp_ransac(&lm.points, &lm.bearings, self.focal(), &self.cfg.pnp)
             .filter(|e| e.inlier_count() >= self.cfg.min_tracked)
             .or_else(|| {
@@ -129,7 +136,12 @@ impl Tracker {
 
     /// Adds the local-map search's matches around `first`: landmarks of the window that the
     /// keyframe's inliers do not already give, to keypoints those inliers do not take.
-    fn add_local_map_matches(&self, lm: &mut LandmarkMatches, cur: &Features, first: &PnpEstimate) {
+    pub(super) fn add_local_map_matches(
+        &self,
+        lm: &mut LandmarkMatches,
+        cur: &Features,
+        first: &PnpEstimate,
+    ) {
         let mut taken = vec![false; cur.len()];
         let mut skip = std::collections::BTreeSet::new();
         for (k, &(b, id)) in lm.pairs.iter().enumerate() {
@@ -157,7 +169,7 @@ impl Tracker {
     /// RANSAC over them all; then two rounds of refinement on the matches within the PnP
     /// threshold; last, when configured, the robust refinement on every match. `None` when
     /// fewer than `min_tracked` matches agree.
-    fn refine_pose(&self, lm: &LandmarkMatches, first: &PnpEstimate) -> Option<PoseFit> {
+    pub(super) fn refine_pose(&self, lm: &LandmarkMatches, first: &PnpEstimate) -> Option<PoseFit> {
         let (all_p, all_b) = (&lm.points, &lm.bearings);
         let from_map = lm.pairs.len() - lm.from_keyframe;
         let thr_sq = (self.cfg.pnp.threshold_px / self.focal()).powi(2);
@@ -254,7 +266,7 @@ impl Tracker {
     /// The frame's pose becomes the last pose; the motion since the last tracked one the
     /// constant-velocity model (after a relocalisation the gap spans failed frames, so the
     /// model starts again).
-    fn update_motion_model(&mut self, input: &FrameMeta, fit: &PoseFit) {
+    pub(super) fn update_motion_model(&mut self, input: &FrameMeta, fit: &PoseFit) {
         let (r, t) = (fit.r, fit.t);
         if self.lost_streak > 0 {
             // relocalised: the motion since the last tracked pose spans the failed frames
@@ -274,7 +286,7 @@ impl Tracker {
     /// since the last keyframe, or (when configured) fewer tracked than the ratio of the
     /// reference's established landmarks (seen by 3 or more keyframes, as ORB-SLAM counts
     /// them; not the ones it has just triangulated).
-    fn needs_keyframe(&self, kf: &Keyframe, tracked: usize) -> bool {
+    pub(super) fn needs_keyframe(&self, kf: &Keyframe, tracked: usize, frames: usize) -> bool {
         let established = || {
             kf.landmark
                 .iter()
@@ -283,7 +295,7 @@ impl Tracker {
                 .count()
         };
         tracked < self.cfg.keyframe_min_tracked
-            || self.frames_since_keyframe >= self.cfg.max_frames_between_keyframes
+            || frames >= self.cfg.max_frames_between_keyframes
             || (self.cfg.keyframe_ratio > 0.0
                 && (tracked as f64) < self.cfg.keyframe_ratio * established() as f64)
     }
