@@ -15,6 +15,7 @@ pub mod common;
 pub mod features;
 pub mod inbox;
 pub mod ingest;
+pub mod log_relay;
 pub mod matching;
 pub mod monitor;
 pub mod supervisor;

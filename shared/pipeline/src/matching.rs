@@ -151,7 +151,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
                 break;
             }
             let has_features = inbox.peek().is_some_and(|(_, f, _)| f.is_some());
-            let reference = match (wanted, asked.get(&next)) {
+            let target = match (wanted, asked.get(&next)) {
                 (true, _) => reference,
                 // the tracker tried this frame by projection and asks for its matches
                 (false, Some(&r)) => (r >= 0).then_some(r as u64),
@@ -165,7 +165,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
             };
             // processing time, not the wait for the tracker's decision
             let t_in = now_ns();
-            let h = match (f, reference) {
+            let h = match (f, target) {
                 (Some(f), _) if skipped => {
                     cache.insert(h_in.seq, f);
                     h_in.forward(Status::Ok)

@@ -337,6 +337,12 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
     let mut rss_samples: BTreeMap<String, Vec<(f64, u64)>> = BTreeMap::new();
     let mut last_rss = Instant::now();
     let mut last_print = Instant::now();
+    let mut relay = crate::log_relay::LogRelay::default();
+    for w in &workers {
+        let log = format!("{}-{}.log", w.stage.name(), w.index);
+        relay.follow(&opts.out.join("logs").join(log));
+    }
+    let mut last_relay = Instant::now();
     let mut tracked = 0usize;
     let mut finished = false;
     let mut interrupted = false;
@@ -478,6 +484,12 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
                 }
             }
         }
+        if last_relay.elapsed() >= Duration::from_millis(200) {
+            last_relay = Instant::now();
+            for line in relay.new_lines() {
+                eprintln!("{line}");
+            }
+        }
         if !opts.quiet && last_print.elapsed() >= Duration::from_secs(1) {
             last_print = Instant::now();
             let p = Percentiles::of(&e2e);
@@ -514,6 +526,9 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
         }
     }
     node.try_cleanup_dead_nodes();
+    for line in relay.new_lines() {
+        eprintln!("{line}");
+    }
 
     let records = read_records(&opts.out.join("frames.csv"))?;
     let mut frames: BTreeMap<String, usize> = BTreeMap::new();

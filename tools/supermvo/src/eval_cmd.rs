@@ -74,7 +74,8 @@ pub struct EvalArgs {
     /// Configuration file (TOML) providing defaults.
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Print nothing but errors.
+    /// No list of the files written (as in `run` and `synth`: -q drops what is not a
+    /// result; the table and errors still print).
     #[arg(long, short)]
     quiet: bool,
 }
@@ -231,9 +232,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
                 args.gt.display()
             )
         })?;
-        if !args.quiet {
-            print_report(&label, &ev);
-        }
+        print_report(&label, &ev);
         results.push((label, ev));
     }
     if let Some(json) = &args.json {

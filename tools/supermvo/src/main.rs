@@ -32,6 +32,23 @@ fn keypoint_count(s: &str) -> Result<usize, String> {
         _ => Err(format!("'{s}' is not a keypoint count from 64 to 8192")),
     }
 }
+
+/// A whole-number flag within the range the configuration allows for its key, refused at
+/// the flag (clap names it) rather than later under the configuration key.
+fn count_in<const LO: usize, const HI: usize>(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(n) if (LO..=HI).contains(&n) => Ok(n),
+        _ => Err(format!("'{s}' is not a whole number from {LO} to {HI}")),
+    }
+}
+
+/// A fraction flag in [0, 1].
+fn fraction(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if (0.0..=1.0).contains(&x) => Ok(x),
+        _ => Err(format!("'{s}' is not a number from 0 to 1")),
+    }
+}
 use std::process::ExitCode;
 
 #[derive(Debug, Parser)]

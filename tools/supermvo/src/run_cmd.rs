@@ -4,7 +4,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use supermvo_config::{Config, IngestMode};
 use supermvo_dataset::{GrayImage, KittiSequence, Trajectory};
 use supermvo_eval::{evaluate, EvalOptions};
@@ -66,15 +66,15 @@ pub struct RunArgs {
     #[arg(long, value_parser = crate::keypoint_count)]
     top_k: Option<usize>,
     /// Keyframes in the local bundle-adjustment window, 0 disables it [pipeline.ba_window].
-    #[arg(long)]
+    #[arg(long, value_parser = crate::count_in::<0, 30>)]
     ba_window: Option<usize>,
     /// New keyframe below this fraction of the reference keyframe's tracked landmarks, 0
     /// off [pipeline.keyframe_ratio].
-    #[arg(long)]
+    #[arg(long, value_parser = crate::fraction)]
     keyframe_ratio: Option<f64>,
     /// Frames in a row tried against the kept map after tracking fails, before a new map is
     /// started; 0 starts one at once [pipeline.relocalisation_frames].
-    #[arg(long)]
+    #[arg(long, value_parser = crate::count_in::<0, 100>)]
     relocalisation_frames: Option<usize>,
     /// Run the matcher on every frame, not only for keyframes (the first round's tracker)
     /// [pipeline.match_every_frame = true].
@@ -91,18 +91,19 @@ pub struct RunArgs {
     #[arg(long)]
     realtime: bool,
     /// Feature-extraction worker processes [pipeline.features_workers].
-    #[arg(long)]
+    #[arg(long, value_parser = crate::count_in::<1, 8>)]
     workers: Option<usize>,
     /// Pipeline name of the daemon [pipeline.name].
     #[arg(long)]
     name: Option<String>,
     /// Replay the sequence this many times [pipeline.loops].
-    #[arg(long)]
+    #[arg(long, value_parser = crate::count_in::<1, 100000>)]
     loops: Option<usize>,
     /// Odometry only: no loop closure [pipeline.loop_closure = false].
     #[arg(long)]
     no_loop_closure: bool,
-    /// No progress display.
+    /// No progress display (as in `eval` and `synth`: -q drops what is not a result; the
+    /// summary, the evaluation and errors still print).
     #[arg(long, short)]
     quiet: bool,
 }
@@ -189,6 +190,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
     };
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
+    clear_previous_run(&args.out)?;
     let (traj, mut report, interrupted) = match args.mode {
         Mode::Inprocess => run_inprocess(args, &cfg, &seq, n)?,
         Mode::Multiprocess => run_multiprocess(args, &cfg, &seq)?,
@@ -263,6 +265,49 @@ pub fn run(args: &RunArgs) -> Result<()> {
             "only {est} of {frames} frames were posed: check that calib.txt belongs to these images, that consecutive images overlap, and that they are not blank; what was estimated is in {}",
             args.out.display()
         );
+    }
+    Ok(())
+}
+
+/// Removes what an earlier run wrote into `out` (its trajectories, report, records, figures
+/// and logs), so that a reused output folder (the default `out/run` is shared by every run)
+/// holds only this run's results; other files stay.
+fn clear_previous_run(out: &Path) -> Result<()> {
+    const WRITTEN: [&str; 11] = [
+        "trajectory.tum.txt",
+        "trajectory.kitti.txt",
+        "report.json",
+        "frames.csv",
+        "metrics.json",
+        "processes.json",
+        "config.toml",
+        "loops.json",
+        "corrected.csv",
+        "trajectory_xz.png",
+        "xyz.png",
+    ];
+    let mut cleared = 0;
+    for entry in std::fs::read_dir(out).with_context(|| format!("reading {}", out.display()))? {
+        let path = entry?.path();
+        let name = path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .unwrap_or_default();
+        let ours = WRITTEN.contains(&name)
+            || name == "rpy.png"
+            || (name.starts_with("ape_") && name.ends_with(".png"));
+        if ours {
+            std::fs::remove_file(&path)
+                .with_context(|| format!("removing the earlier run's {}", path.display()))?;
+            cleared += 1;
+        } else if name == "logs" && path.is_dir() {
+            std::fs::remove_dir_all(&path)
+                .with_context(|| format!("removing the earlier run's {}", path.display()))?;
+            cleared += 1;
+        }
+    }
+    if cleared > 0 {
+        tracing::info!("{}: replaced an earlier run's results", out.display());
     }
     Ok(())
 }

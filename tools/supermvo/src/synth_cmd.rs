@@ -33,7 +33,8 @@ pub struct SynthArgs {
     /// Render again even if an identical sequence is already there.
     #[arg(long)]
     force: bool,
-    /// No progress bar.
+    /// No progress bar (as in `run` and `eval`: -q drops what is not a result; what was
+    /// written and errors still print).
     #[arg(long, short)]
     quiet: bool,
 }

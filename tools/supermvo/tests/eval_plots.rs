@@ -38,6 +38,13 @@ fn plots_for_two_estimates() {
         "{}",
         String::from_utf8_lossy(&res.stderr)
     );
+    // -q means what it means in `run`: the results print, the list of files written does not
+    let stdout = String::from_utf8_lossy(&res.stdout);
+    assert!(
+        stdout.contains("supermvo") && stdout.contains("orb") && stdout.contains("APE"),
+        "{stdout}"
+    );
+    assert!(!stdout.contains("wrote "), "{stdout}");
     for f in [
         "trajectory_xz.png",
         "xyz.png",

@@ -255,3 +255,22 @@ fn top_k_out_of_range_is_refused_alike_by_every_command() {
         );
     }
 }
+
+/// Every `run` flag that overrides a configuration key with a range is refused at the flag,
+/// by its name, instead of later by the key's name (`pipeline.ba_window`) the user never typed.
+#[test]
+fn out_of_range_run_flags_are_refused_by_the_flag_name() {
+    for (flag, value, range) in [
+        ("--ba-window", "50", "from 0 to 30"),
+        ("--keyframe-ratio", "1.5", "from 0 to 1"),
+        ("--relocalisation-frames", "101", "from 0 to 100"),
+        ("--workers", "0", "from 1 to 8"),
+        ("--loops", "0", "from 1 to 100000"),
+    ] {
+        let out = common::supermvo(&["run", "seq", flag, value]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{flag}: {err}");
+        assert!(err.contains(flag) && err.contains(range), "{flag}: {err}");
+        assert!(!err.contains("pipeline."), "{flag}: {err}");
+    }
+}

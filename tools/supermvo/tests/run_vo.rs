@@ -204,7 +204,12 @@ fn black_frame_no_motion_and_unreadable_frame_are_states_not_failures() {
     assert_eq!(rows[12], rows[11], "the black frame holds frame 11's pose");
     // the daemon (one process per stage) relocalises the same way, bit for bit
     let daemon = tmp.path().join("daemon");
-    run("multiprocess", &daemon);
+    let r = run("multiprocess", &daemon);
+    let stderr = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        stderr.contains("[ingest-0]") && stderr.contains("frame 18"),
+        "the stage's warning reaches the daemon's terminal, not only its log: {stderr}"
+    );
     assert_eq!(
         std::fs::read_to_string(daemon.join("trajectory.tum.txt")).unwrap(),
         traj
@@ -243,6 +248,11 @@ fn a_run_that_poses_almost_nothing_fails_after_writing_what_it_has() {
     let out = tmp.path().join("out");
     std::fs::create_dir_all(&out).unwrap();
     std::fs::write(out.join("trajectory.kitti.txt"), "an older run's file\n").unwrap();
+    // an older run's figure and log (this run evaluates nothing), and the user's own file
+    std::fs::write(out.join("ape_supermvo.png"), "an older run's figure").unwrap();
+    std::fs::create_dir_all(out.join("logs")).unwrap();
+    std::fs::write(out.join("logs/tracking-0.log"), "an older run's log").unwrap();
+    std::fs::write(out.join("notes.txt"), "the user's").unwrap();
     let (seq, out_s) = (seq.to_str().unwrap(), out.to_str().unwrap());
     let r = common::supermvo(&[
         "run",
@@ -273,6 +283,11 @@ fn a_run_that_poses_almost_nothing_fails_after_writing_what_it_has() {
     let kitti = std::fs::read_to_string(out.join("trajectory.kitti.txt")).unwrap();
     assert_eq!(kitti.lines().count(), 20, "the older file was replaced");
     assert!(out.join("report.json").is_file());
+    assert!(
+        !out.join("ape_supermvo.png").exists() && !out.join("logs").exists(),
+        "an older run's figure and logs would pass for this run's"
+    );
+    assert!(out.join("notes.txt").is_file(), "other files stay");
 }
 
 /// A trajectory file as (frame index at 10 Hz, rotation, position).
