@@ -110,6 +110,26 @@ fn padded_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
     (lo - pad)..(hi + pad)
 }
 
+/// Tick labels for an axis spanning `range`: as many decimals as its tick spacing needs
+/// (about a tenth of the span: none for 130 m, one for 1.3 m), no "-0", and a true minus
+/// sign, which the fonts space correctly where a hyphen before "1" made "-10" read "-1 0".
+fn tick_formatter(range: &std::ops::Range<f64>) -> impl Fn(&f64) -> String {
+    let step = ((range.end - range.start) / 10.0).abs().max(1e-9);
+    let decimals = (-step.log10().floor()).clamp(0.0, 4.0) as usize;
+    move |v: &f64| {
+        let text = format!("{v:.decimals$}");
+        if text
+            .trim_start_matches('-')
+            .chars()
+            .all(|c| c == '0' || c == '.')
+        {
+            text.trim_start_matches('-').to_string()
+        } else {
+            text.replace('-', "\u{2212}")
+        }
+    }
+}
+
 /// Equal-aspect x-z ranges covering all trajectories.
 fn xz_ranges(trajs: &[&Trajectory]) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
     let xr = padded_range(trajs.iter().flat_map(|t| t.poses.iter().map(|p| p.t.x)));
@@ -141,6 +161,7 @@ fn top_view_chart<'a, DB: DrawingBackend>(
     trajs: &[&Trajectory],
 ) -> Result<TopView<'a, DB>, DrawingAreaErrorKind<DB::ErrorType>> {
     let (xr, zr) = xz_ranges(trajs);
+    let (x_ticks, z_ticks) = (tick_formatter(&xr), tick_formatter(&zr));
     let mut chart = ChartBuilder::on(area)
         .caption(caption, ("sans-serif", caption_size))
         .margin(15)
@@ -151,6 +172,8 @@ fn top_view_chart<'a, DB: DrawingBackend>(
         .configure_mesh()
         .x_desc("x (m)")
         .y_desc("z (m)")
+        .x_label_formatter(&x_ticks)
+        .y_label_formatter(&z_ticks)
         .draw()?;
     Ok(chart)
 }
@@ -166,25 +189,27 @@ fn trajectory_xz(
     let mut all: Vec<&Trajectory> = vec![reference];
     all.extend(results.iter().map(|(_, ev)| &ev.estimate));
     let mut chart = top_view_chart(&root, "Trajectory, top view (x-z)", 24, &all).map_err(&e)?;
-    chart
-        .draw_series(LineSeries::new(
-            reference.poses.iter().map(|p| (p.t.x, p.t.z)),
-            BLACK.stroke_width(2),
-        ))
-        .map_err(&e)?
-        .label("ground truth")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(2)));
+    // the estimates first and wide, the ground truth last and thin, so both stay visible
+    // where they coincide
     for (i, (label, ev)) in results.iter().enumerate() {
         let c = PALETTE[i % PALETTE.len()];
         chart
             .draw_series(LineSeries::new(
                 ev.estimate.poses.iter().map(|p| (p.t.x, p.t.z)),
-                c.stroke_width(2),
+                c.stroke_width(3),
             ))
             .map_err(&e)?
             .label(label.as_str())
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(3)));
     }
+    chart
+        .draw_series(LineSeries::new(
+            reference.poses.iter().map(|p| (p.t.x, p.t.z)),
+            BLACK.stroke_width(1),
+        ))
+        .map_err(&e)?
+        .label("ground truth")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(1)));
     draw_legend(&mut chart).map_err(&e)?;
     root.present().map_err(&e)
 }
@@ -206,22 +231,26 @@ fn three_panels(
     top.titled(title, ("sans-serif", 24)).map_err(&e)?;
     let panels = body.split_evenly((3, 1));
     let (t_ref, t_label) = time_axis(reference);
-    let series: Vec<(String, RGBColor, &Trajectory)> =
-        std::iter::once(("ground truth".to_string(), BLACK, reference))
-            .chain(
-                results
-                    .iter()
-                    .enumerate()
-                    .map(|(i, (l, ev))| (l.clone(), PALETTE[i % PALETTE.len()], &ev.estimate)),
-            )
-            .collect();
+    // estimates first and wide, the ground truth last and thin (visible where they coincide)
+    let series: Vec<(String, RGBColor, u32, &Trajectory)> = results
+        .iter()
+        .enumerate()
+        .map(|(i, (l, ev))| (l.clone(), PALETTE[i % PALETTE.len()], 3, &ev.estimate))
+        .chain(std::iter::once((
+            "ground truth".to_string(),
+            BLACK,
+            1,
+            reference,
+        )))
+        .collect();
     for (k, area) in panels.iter().enumerate() {
         let vr = padded_range(
             series
                 .iter()
-                .flat_map(|(_, _, t)| t.poses.iter().map(|p| value(p)[k])),
+                .flat_map(|(_, _, _, t)| t.poses.iter().map(|p| value(p)[k])),
         );
         let tr = padded_range(t_ref.iter().copied());
+        let (t_ticks, v_ticks) = (tick_formatter(&tr), tick_formatter(&vr));
         let mut chart = ChartBuilder::on(area)
             .margin(8)
             .x_label_area_size(if k == 2 { 40 } else { 20 })
@@ -229,12 +258,14 @@ fn three_panels(
             .build_cartesian_2d(tr, vr)
             .map_err(&e)?;
         let mut mesh = chart.configure_mesh();
-        mesh.y_desc(names[k]);
+        mesh.y_desc(names[k])
+            .x_label_formatter(&t_ticks)
+            .y_label_formatter(&v_ticks);
         if k == 2 {
             mesh.x_desc(t_label);
         }
         mesh.draw().map_err(&e)?;
-        for (label, color, traj) in &series {
+        for (label, color, width, traj) in &series {
             // Associated trajectories share the reference's time axis, pose for pose. Angles
             // are drawn as separate runs between wraps so a jump from +180 to -180 degrees
             // does not streak across the panel.
@@ -255,13 +286,13 @@ fn three_panels(
             let s = chart
                 .draw_series(
                     runs.into_iter()
-                        .map(|r| PathElement::new(r.to_vec(), color.stroke_width(2))),
+                        .map(|r| PathElement::new(r.to_vec(), color.stroke_width(*width))),
                 )
                 .map_err(&e)?;
             if k == 0 {
-                let c = *color;
+                let (c, w) = (*color, *width);
                 s.label(label.as_str()).legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2))
+                    PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(w))
                 });
             }
         }
@@ -298,21 +329,13 @@ fn ape_path(path: &Path, label: &str, ev: &Evaluation) -> Result<(), PlotError> 
     let e = draw_err(path);
     let root = BitMapBackend::new(path, (1000, 900)).into_drawing_area();
     root.fill(&WHITE).map_err(&e)?;
-    let (main, bar) = root.split_horizontally(860);
+    let (main, bar) = root.split_horizontally(820);
     let errs = &ev.ape.trans.values;
     let (lo, hi) = (ev.ape.trans.stats.min, ev.ape.trans.stats.max);
     let span = (hi - lo).max(1e-12);
     let caption = format!("APE (translation) along the path: {label}");
     let mut chart =
         top_view_chart(&main, &caption, 22, &[&ev.reference, &ev.estimate]).map_err(&e)?;
-    chart
-        .draw_series(LineSeries::new(
-            ev.reference.poses.iter().map(|p| (p.t.x, p.t.z)),
-            BLACK.mix(0.4).stroke_width(1),
-        ))
-        .map_err(&e)?
-        .label("ground truth")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.mix(0.4)));
     let poses = &ev.estimate.poses;
     chart
         .draw_series(poses.windows(2).zip(errs.windows(2)).map(|(p, v)| {
@@ -323,6 +346,15 @@ fn ape_path(path: &Path, label: &str, ev: &Evaluation) -> Result<(), PlotError> 
             )
         }))
         .map_err(&e)?;
+    // the ground truth over the coloured path, thin, so it shows where they coincide
+    chart
+        .draw_series(LineSeries::new(
+            ev.reference.poses.iter().map(|p| (p.t.x, p.t.z)),
+            BLACK.mix(0.7).stroke_width(1),
+        ))
+        .map_err(&e)?
+        .label("ground truth")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.mix(0.7)));
     draw_legend(&mut chart).map_err(&e)?;
     draw_colorbar(&bar, lo, hi).map_err(&e)?;
     root.present().map_err(&e)
@@ -333,16 +365,19 @@ fn draw_colorbar<DB: DrawingBackend>(
     lo: f64,
     hi: f64,
 ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    let range = lo..hi.max(lo + 1e-12);
+    let ticks = tick_formatter(&range);
     let mut chart = ChartBuilder::on(area)
         .margin_top(60)
         .margin_bottom(60)
-        .margin_right(5)
-        .y_label_area_size(75)
-        .build_cartesian_2d(0.0..1.0, lo..hi.max(lo + 1e-12))?;
+        .margin_right(40)
+        .y_label_area_size(85)
+        .build_cartesian_2d(0.0..1.0, range)?;
     chart
         .configure_mesh()
         .disable_x_mesh()
         .disable_x_axis()
+        .y_label_formatter(&ticks)
         .y_desc("APE (m)")
         .y_label_style(("sans-serif", 14))
         .axis_desc_style(("sans-serif", 16))
@@ -437,5 +472,19 @@ mod tests {
         assert_eq!(viridis(0.0), RGBColor(68, 1, 84));
         assert_eq!(viridis(1.0), RGBColor(253, 231, 37));
         assert_eq!(viridis(f64::NAN), RGBColor(68, 1, 84));
+    }
+
+    #[test]
+    fn tick_labels_have_the_decimals_the_span_needs_and_no_negative_zero() {
+        let metres = tick_formatter(&(-85.0..5.0));
+        assert_eq!(metres(&-10.0), "\u{2212}10");
+        assert_eq!(metres(&40.0), "40");
+        assert_eq!(metres(&-0.0), "0");
+        let small = tick_formatter(&(-0.1..1.2));
+        assert_eq!(small(&-0.02), "0.0");
+        assert_eq!(small(&-0.3), "\u{2212}0.3");
+        assert_eq!(small(&0.8), "0.8");
+        let tiny = tick_formatter(&(0.0..0.05));
+        assert_eq!(tiny(&0.012), "0.012");
     }
 }
