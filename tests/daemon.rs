@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 use supermvo_config::Config;
-use supermvo_dataset::{GrayImage, KittiSequence};
+use supermvo_dataset::{GrayImage, Sequence};
 use supermvo_pipeline::backend::read_records;
 use supermvo_pipeline::supervisor::{self, SupervisorOptions};
 use supermvo_pipeline::{features, matching, tracking};
@@ -173,7 +173,7 @@ fn multiprocess_lossless_equals_inprocess_bit_for_bit_on_kitti_03() {
     );
 
     // the same stages, in this process, one frame after the other
-    let seq = KittiSequence::open(&seq_dir).unwrap();
+    let seq = Sequence::open(&seq_dir).unwrap();
     let p = &opts.config.pipeline;
     let mut vo = VoPipeline::new(
         features::extractor(p).unwrap(),

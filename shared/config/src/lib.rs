@@ -157,6 +157,11 @@ pub struct PipelineConfig {
     /// against it (at its own scale) for at most this many frames in a row before a new map
     /// is started; 0 starts one at once, [0, 100].
     pub relocalisation_frames: usize,
+    /// Camera file (ORB-SLAM3 / OpenCV YAML or EuRoC `sensor.yaml`) with the intrinsics and
+    /// lens distortion of the frames; replaces KITTI's `calib.txt` and EuRoC's own
+    /// `sensor.yaml`, and is needed by TUM and image-folder sequences without `camera.yaml`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub camera: Option<std::path::PathBuf>,
     /// Run the matcher on every frame against the reference keyframe (the first round's
     /// tracker). false (the default): only for initialisation, new keyframes and after a
     /// lost frame; the frames between keyframes are tracked by projecting the map.
@@ -214,6 +219,7 @@ impl Default for PipelineConfig {
             ba_window: 6,
             keyframe_ratio: 0.0,
             relocalisation_frames: 5,
+            camera: None,
             match_every_frame: false,
             max_restarts: 5,
             restart_backoff_ms: 100,

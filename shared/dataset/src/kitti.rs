@@ -8,7 +8,6 @@
 //! ```
 
 use crate::error::{parse_numbers, DatasetError};
-use crate::trajectory::{read_trajectory, Trajectory, TrajectoryFormat};
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 
@@ -93,102 +92,6 @@ pub fn image_files(dir: &Path) -> Result<Vec<PathBuf>, DatasetError> {
         natord::compare(&name(a).unwrap_or_default(), &name(b).unwrap_or_default())
     });
     Ok(images)
-}
-
-/// One KITTI odometry sequence on disk.
-#[derive(Debug, Clone)]
-pub struct KittiSequence {
-    /// The sequence directory (`.../sequences/NN`).
-    pub dir: PathBuf,
-    /// Left-camera intrinsics.
-    pub calib: Calibration,
-    /// Timestamp of each frame, seconds.
-    pub times: Vec<f64>,
-    /// Image file of each frame, in order.
-    pub images: Vec<PathBuf>,
-}
-
-impl KittiSequence {
-    /// Opens `dir` (a `sequences/NN` directory), using `image_0` (or `image_2` if absent).
-    ///
-    /// Checks that `times.txt` has one line per image.
-    pub fn open(dir: &Path) -> Result<Self, DatasetError> {
-        if !dir.is_dir() {
-            return Err(DatasetError::invalid(dir, "sequence directory not found"));
-        }
-        let calib = Calibration::read_kitti(&dir.join("calib.txt"))?;
-        let times_path = dir.join("times.txt");
-        let times = read_times(&times_path)?;
-        let img_dir = ["image_0", "image_2"]
-            .iter()
-            .map(|d| dir.join(d))
-            .find(|d| d.is_dir())
-            .ok_or_else(|| {
-                DatasetError::invalid(dir, "no image_0/ or image_2/ directory with the frames")
-            })?;
-        let images = image_files(&img_dir)?;
-        if images.is_empty() {
-            return Err(DatasetError::invalid(
-                &img_dir,
-                "no PNG or JPEG frames found",
-            ));
-        }
-        if images.len() != times.len() {
-            return Err(DatasetError::invalid(
-                &times_path,
-                format!(
-                    "{} timestamps but {} images in {}",
-                    times.len(),
-                    images.len(),
-                    img_dir.display()
-                ),
-            ));
-        }
-        Ok(Self {
-            dir: dir.to_path_buf(),
-            calib,
-            times,
-            images,
-        })
-    }
-
-    /// Sequence name (the directory name, e.g. `00`).
-    pub fn name(&self) -> String {
-        self.dir
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default()
-    }
-
-    /// Where the conventional ground-truth file `../../poses/NN.txt` would be (`None` when
-    /// the sequence directory has no grandparent).
-    pub fn ground_truth_candidate(&self) -> Option<PathBuf> {
-        let root = self.dir.parent()?.parent()?;
-        Some(root.join("poses").join(format!("{}.txt", self.name())))
-    }
-
-    /// The conventional ground-truth file `../../poses/NN.txt`, if it exists.
-    pub fn default_ground_truth(&self) -> Option<PathBuf> {
-        self.ground_truth_candidate().filter(|p| p.is_file())
-    }
-
-    /// Reads ground truth (KITTI poses) and attaches this sequence's timestamps; the
-    /// number of poses must equal the number of frames.
-    pub fn read_ground_truth(&self, path: &Path) -> Result<Trajectory, DatasetError> {
-        let mut gt = read_trajectory(path, TrajectoryFormat::Kitti)?;
-        if gt.len() != self.times.len() {
-            return Err(DatasetError::invalid(
-                path,
-                format!(
-                    "{} poses but the sequence has {} frames",
-                    gt.len(),
-                    self.times.len()
-                ),
-            ));
-        }
-        gt.stamps = Some(self.times.clone());
-        Ok(gt)
-    }
 }
 
 /// Reads a `times.txt`: one number (seconds) per line.

@@ -8,7 +8,7 @@ use crate::common::{send_slice, stamp, StageArgs, StageContext};
 use anyhow::{bail, Result};
 use std::time::{Duration, Instant};
 use supermvo_config::IngestMode;
-use supermvo_dataset::{GrayImage, KittiSequence};
+use supermvo_dataset::Sequence;
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
 use supermvo_messages::iceoryx2::prelude::*;
 use supermvo_messages::{
@@ -33,7 +33,7 @@ pub struct Replay {
 
 impl Replay {
     /// The replay of `seq` (`max_frames` 0: all) `loops` times.
-    pub fn new(seq: &KittiSequence, max_frames: usize, loops: usize) -> Self {
+    pub fn new(seq: &Sequence, max_frames: usize, loops: usize) -> Self {
         let n = if max_frames == 0 {
             seq.images.len()
         } else {
@@ -69,12 +69,12 @@ impl Replay {
 /// Runs the ingest stage until SIGTERM.
 pub fn run(args: &StageArgs) -> Result<()> {
     let cfg = args.load_config()?.pipeline;
-    let seq = KittiSequence::open(&args.seq)?;
+    let seq = Sequence::open_with_camera(&args.seq, cfg.camera.as_deref())?;
     let replay = Replay::new(&seq, cfg.max_frames, cfg.loops);
     if replay.frames == 0 {
         bail!("{}: no frames", seq.dir.display());
     }
-    let first = GrayImage::load(&seq.images[0])?;
+    let first = seq.load_frame(0)?;
     let mut ctx = StageContext::new(StageKind::Ingest, args.worker, &cfg)?;
     let frames = ctx
         .services
@@ -184,13 +184,13 @@ fn publisher_keepalive(p: &FramePublisher) {
 /// Loads frame `index` and publishes it as `seq` (or reports it unreadable).
 fn publish_frame(
     p: &FramePublisher,
-    seq: &KittiSequence,
+    seq: &Sequence,
     next: u64,
     index: usize,
     t: f64,
     size: (usize, usize),
 ) -> Result<FrameHeader> {
-    let image = match GrayImage::load(&seq.images[index]) {
+    let image = match seq.load_frame(index) {
         Ok(img) if (img.width, img.height) == size => Some(img),
         Ok(img) => {
             tracing::warn!(

@@ -238,7 +238,7 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
             missing.join(", ")
         );
     }
-    supermvo_dataset::KittiSequence::open(&opts.seq)?;
+    supermvo_dataset::Sequence::open_with_camera(&opts.seq, cfg.camera.as_deref())?;
     std::fs::create_dir_all(opts.out.join("logs"))
         .with_context(|| format!("creating {}", opts.out.display()))?;
     let services = Services::new(&cfg.name);

@@ -8,7 +8,7 @@ use crate::inbox::Inbox;
 use anyhow::Result;
 use std::time::Duration;
 use supermvo_config::PipelineConfig;
-use supermvo_dataset::KittiSequence;
+use supermvo_dataset::Sequence;
 use supermvo_geometry::{Mat3, Pose, Vec3};
 use supermvo_inference::{Features, Matches};
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
@@ -83,7 +83,7 @@ pub fn pose_of(p: &[f64; 12]) -> Pose {
 /// Runs the tracking stage until SIGTERM.
 pub fn run(args: &StageArgs) -> Result<()> {
     let cfg = args.load_config()?.pipeline;
-    let seq = KittiSequence::open(&args.seq)?;
+    let seq = Sequence::open_with_camera(&args.seq, cfg.camera.as_deref())?;
     let mut tracker = Tracker::new(seq.calib, tracker_config(&cfg));
     // Loop closure runs beside the tracker, so that its corrections reach the tracker before
     // the next frame exactly as in one process (lossless runs stay bit-identical).

@@ -411,7 +411,7 @@ fn matching(
     confidence: f64,
     csv: Option<&std::path::Path>,
 ) -> Result<()> {
-    use supermvo_dataset::KittiSequence;
+    use supermvo_dataset::Sequence;
     use supermvo_geometry::essential::RansacConfig;
     use supermvo_vo::pairs::essential_inliers;
     // the front end exactly as the pipeline builds it
@@ -432,7 +432,7 @@ fn matching(
     outln!("| seq | pairs | matches (median / mean) | inliers (median / mean) | inlier ratio (median / mean) |");
     outln!("|---|---|---|---|---|");
     for dir in sequences {
-        let seq = KittiSequence::open(dir)?;
+        let seq = Sequence::open(dir)?;
         let k = seq.calib;
         let (mut ms, mut is, mut rs) = (Vec::new(), Vec::new(), Vec::new());
         let mut prev = xfeat.extract(&GrayImage::load(&seq.images[0])?)?;
@@ -504,7 +504,7 @@ fn tracking(
     use supermvo_vo::loops::{LoopCloser, LoopConfig};
     use supermvo_vo::pipeline::close_loops;
     use supermvo_vo::tracker::{FrameMeta, Tracker};
-    let seq = supermvo_dataset::KittiSequence::open(seq_dir)?;
+    let seq = supermvo_dataset::Sequence::open(seq_dir)?;
     let cfg = supermvo_config::PipelineConfig {
         frontend: frontend.parse().map_err(anyhow::Error::msg)?,
         ..Default::default()
@@ -518,7 +518,7 @@ fn tracking(
     let mut recorded = Vec::with_capacity(n);
     let (mut extract_ms, mut match_ms) = (Vec::new(), Vec::new());
     for i in 0..n {
-        let image = GrayImage::load(&seq.images[i])?;
+        let image = seq.load_frame(i)?;
         let s = Instant::now();
         let cur = extractor.extract(&image)?;
         extract_ms.push(s.elapsed().as_secs_f64() * 1e3);

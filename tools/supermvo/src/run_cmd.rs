@@ -6,7 +6,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use std::path::{Path, PathBuf};
 use supermvo_config::{Config, IngestMode};
-use supermvo_dataset::{GrayImage, KittiSequence, Trajectory};
+use supermvo_dataset::{GrayImage, Sequence, Trajectory};
 use supermvo_eval::{evaluate, EvalOptions};
 use supermvo_geometry::AlignmentKind;
 use supermvo_pipeline::backend::{read_records, with_corrections, write_trajectories};
@@ -76,6 +76,11 @@ pub struct RunArgs {
     /// started; 0 starts one at once [pipeline.relocalisation_frames].
     #[arg(long, value_parser = crate::count_in::<0, 100>)]
     relocalisation_frames: Option<usize>,
+    /// Camera file (ORB-SLAM3 / OpenCV YAML or EuRoC sensor.yaml) with intrinsics and lens
+    /// distortion; needed for TUM and image folders without camera.yaml, and replaces
+    /// KITTI's calib.txt and EuRoC's sensor.yaml [pipeline.camera].
+    #[arg(long)]
+    camera: Option<PathBuf>,
     /// Run the matcher on every frame, not only for keyframes (the first round's tracker)
     /// [pipeline.match_every_frame = true].
     #[arg(long)]
@@ -131,6 +136,13 @@ impl RunArgs {
         if self.match_every_frame {
             p.match_every_frame = true;
         }
+        if let Some(c) = &self.camera {
+            // absolute, so the daemon's stages find it whatever their directory
+            p.camera = Some(
+                std::fs::canonicalize(c)
+                    .with_context(|| format!("--camera {}: not found", c.display()))?,
+            );
+        }
         if let Some(v) = self.max_frames {
             p.max_frames = v;
         }
@@ -164,8 +176,8 @@ impl RunArgs {
 }
 
 /// Checks that the calibration belongs to the images (principal point inside them).
-fn check_calibration(seq: &KittiSequence) -> Result<GrayImage> {
-    let first = GrayImage::load(&seq.images[0])?;
+fn check_calibration(seq: &Sequence) -> Result<GrayImage> {
+    let first = seq.load_frame(0)?;
     if seq.calib.cx <= 0.0
         || seq.calib.cx >= first.width as f64
         || seq.calib.cy <= 0.0
@@ -182,7 +194,7 @@ fn check_calibration(seq: &KittiSequence) -> Result<GrayImage> {
 /// Runs `supermvo run`.
 pub fn run(args: &RunArgs) -> Result<()> {
     let cfg = args.config()?;
-    let seq = KittiSequence::open(&args.seq_dir)?;
+    let seq = Sequence::open_with_camera(&args.seq_dir, cfg.pipeline.camera.as_deref())?;
     check_calibration(&seq)?;
     let n = match cfg.pipeline.max_frames {
         0 => seq.images.len(),
@@ -328,7 +340,7 @@ fn progress_bar(quiet: bool, n: usize) -> indicatif::ProgressBar {
 fn run_inprocess(
     args: &RunArgs,
     cfg: &Config,
-    seq: &KittiSequence,
+    seq: &Sequence,
     n: usize,
 ) -> Result<(Trajectory, serde_json::Value, bool)> {
     let p = &cfg.pipeline;
@@ -342,7 +354,7 @@ fn run_inprocess(
         tracker,
         loops,
     ));
-    let first = GrayImage::load(&seq.images[0])?;
+    let first = seq.load_frame(0)?;
     let bar = progress_bar(args.quiet, n);
     let mut outputs = Vec::with_capacity(n);
     // Ctrl-C (or SIGTERM) ends the loop after the frame in hand; what was estimated is
@@ -357,7 +369,7 @@ fn run_inprocess(
             interrupted_at = Some(i);
             break;
         }
-        let image = match GrayImage::load(&seq.images[i]) {
+        let image = match seq.load_frame(i) {
             Ok(img) if img.width == first.width && img.height == first.height => img,
             Ok(img) => {
                 tracing::warn!(
@@ -432,7 +444,7 @@ fn run_inprocess(
 fn run_multiprocess(
     args: &RunArgs,
     cfg: &Config,
-    seq: &KittiSequence,
+    seq: &Sequence,
 ) -> Result<(Trajectory, serde_json::Value, bool)> {
     // ONNX Runtime and the models, checked here before any stage starts: a missing one is
     // one clear error (as in process) instead of stages failing and being restarted

@@ -7,14 +7,14 @@
 mod common;
 
 use supermvo_config::{Frontend, PipelineConfig};
-use supermvo_dataset::{GrayImage, KittiSequence};
+use supermvo_dataset::{GrayImage, Sequence};
 use supermvo_geometry::essential::RansacConfig;
 use supermvo_inference::lighterglue::{LightGlue, LightGlueConfig};
 use supermvo_inference::{models, Features, Matcher, Matches};
 use supermvo_vo::pairs::essential_inliers;
 
 /// 5-point RANSAC inliers (1 px, 0.999) of `m` between `a` and `b` under `seq`'s calibration.
-fn inliers(seq: &KittiSequence, a: &Features, b: &Features, m: &Matches) -> usize {
+fn inliers(seq: &Sequence, a: &Features, b: &Features, m: &Matches) -> usize {
     essential_inliers(&seq.calib, a, b, m, &RansacConfig::default())
 }
 
@@ -47,7 +47,7 @@ fn consecutive_kitti_frames_give_many_epipolar_inliers_and_beat_orb() {
     )
     .unwrap();
     for (name, frame) in [("00", 0), ("07", 100)] {
-        let seq = KittiSequence::open(&kitti.join(name)).unwrap();
+        let seq = Sequence::open(&kitti.join(name)).unwrap();
         let (ia, ib) = (
             GrayImage::load(&seq.images[frame]).unwrap(),
             GrayImage::load(&seq.images[frame + 1]).unwrap(),
