@@ -12,7 +12,7 @@ RMSE after Sim(3), median tracked landmarks per posed frame (the pose's inliers)
 metric where the ground truth covers 100 m, and the median time per frame. Any further
 arguments go to every `supermvo run` (for example `--frontend orb`), and `--bin` runs
 another build. `--peer ARGS` runs every sequence a second time, right after, with those
-arguments instead (for example `--peer=--match-every-frame`, the first round's tracker), and
+arguments instead (for example `--peer=--keyframe-matching`, the matcher only for keyframes), and
 adds the peer's posed frames, APE and time per frame and the ratio of the times: a speed
 comparison on the same machine in the same minutes.
 

@@ -81,10 +81,10 @@ pub struct RunArgs {
     /// KITTI's calib.txt and EuRoC's sensor.yaml [pipeline.camera].
     #[arg(long)]
     camera: Option<PathBuf>,
-    /// Run the matcher on every frame, not only for keyframes (the first round's tracker)
-    /// [pipeline.match_every_frame = true].
+    /// Run the matcher only for keyframes and frames that projection does not track (faster;
+    /// see docs/vo.md) [pipeline.match_every_frame = false].
     #[arg(long)]
-    match_every_frame: bool,
+    keyframe_matching: bool,
     /// Seed of the tracker's RANSAC sampling; 0 gives the reported runs [pipeline.seed].
     #[arg(long)]
     seed: Option<u64>,
@@ -133,8 +133,8 @@ impl RunArgs {
         if let Some(v) = self.relocalisation_frames {
             p.relocalisation_frames = v;
         }
-        if self.match_every_frame {
-            p.match_every_frame = true;
+        if self.keyframe_matching {
+            p.match_every_frame = false;
         }
         if let Some(c) = &self.camera {
             // absolute, so the daemon's stages find it whatever their directory

@@ -218,6 +218,20 @@ fn black_frame_no_motion_and_unreadable_frame_are_states_not_failures() {
         std::fs::read_to_string(daemon.join("trajectory.kitti.txt")).unwrap(),
         kitti
     );
+    // with the matcher only for keyframes (frames tracked by projection, the matching stage
+    // asked for the others), the daemon still gives the in-process trajectory bit for bit
+    let keyframe_matching = |mode: &str| {
+        let out = tmp.path().join(format!("kfm-{mode}"));
+        let (s, o) = (seq.to_str().unwrap(), out.to_str().unwrap());
+        let args = ["run", s, "--mode", mode, "--name", "runvo-black-frame"];
+        let r = common::supermvo(&[&args[..], &["-q", "--keyframe-matching", "--out", o]].concat());
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        std::fs::read_to_string(out.join("trajectory.kitti.txt")).unwrap()
+    };
+    assert_eq!(
+        keyframe_matching("multiprocess"),
+        keyframe_matching("inprocess")
+    );
     // the stages' log files hold plain text (the ingest stage warns of the unreadable frame)
     let mut logged = String::new();
     for f in std::fs::read_dir(daemon.join("logs")).unwrap() {
