@@ -10,7 +10,8 @@
 //! ```
 //!
 //! A camera file (`--camera`, or `camera.yaml` in DIR; EuRoC's `sensor.yaml` by default)
-//! gives the intrinsics and lens distortion where KITTI's `calib.txt` is not used; distorted
+//! gives the intrinsics and lens distortion, and takes precedence over KITTI's `calib.txt`
+//! (`supermvo synth --distortion` writes one beside it); distorted
 //! frames are remapped to a pinhole camera as they are loaded ([`Sequence::load_frame`]).
 
 use crate::camera::{Camera, Undistorter};
@@ -71,8 +72,10 @@ impl Sequence {
         let kitti = dir.join("image_0").is_dir() || dir.join("image_2").is_dir();
         if kitti {
             let mut seq = Self::open(dir)?;
-            if let Some(path) = camera {
-                let camera = Camera::read(path)?;
+            // a camera file (given, or camera.yaml beside calib.txt) describes the lens
+            let beside = Some(dir.join("camera.yaml")).filter(|p| p.is_file());
+            if let Some(path) = camera.map(Path::to_path_buf).or(beside) {
+                let camera = Camera::read(&path)?;
                 seq = Self::with_camera(dir, Layout::Kitti, seq.times, seq.images, &camera)?;
             }
             return Ok(seq);

@@ -79,6 +79,9 @@ pub struct Manifest {
     pub height: usize,
     /// Renderer version (bumped whenever output changes).
     pub renderer: u32,
+    /// Lens distortion the frames were rendered with (absent: a pinhole camera).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub distortion: Option<supermvo_dataset::Distortion>,
     /// Length of the camera's path, metres.
     pub path_length_m: f64,
 }
@@ -110,6 +113,9 @@ pub struct Sequence {
     pub frames: usize,
     /// Seed.
     pub seed: u64,
+    /// Lens distortion of the rendered frames ([`Sequence::with_distortion`]).
+    pub distortion: supermvo_dataset::Distortion,
+    lens: Option<std::sync::Arc<render::LensMap>>,
     wobble: [f64; 8],
 }
 
@@ -143,8 +149,20 @@ impl Sequence {
             camera,
             frames,
             seed,
+            distortion: supermvo_dataset::Distortion::None,
+            lens: None,
             wobble,
         })
+    }
+
+    /// The same sequence seen through a lens with `distortion` (of the camera's normalised
+    /// coordinates, same intrinsics): each frame is rendered for the pinhole camera and
+    /// resampled where the lens puts each pixel, and a `camera.yaml` describing the lens is
+    /// written beside `calib.txt`.
+    pub fn with_distortion(mut self, distortion: supermvo_dataset::Distortion) -> Self {
+        self.distortion = distortion;
+        self.lens = render::LensMap::new(&self.camera, &distortion).map(std::sync::Arc::new);
+        self
     }
 
     /// Time of frame `i`, seconds.
@@ -210,8 +228,17 @@ impl Sequence {
         }
     }
 
-    /// Renders frame `i`.
+    /// Renders frame `i` (through the lens, when there is one).
     pub fn render(&self, i: usize) -> Frame {
+        let pinhole = self.render_pinhole(i);
+        match &self.lens {
+            Some(lens) => lens.apply(&pinhole),
+            None => pinhole,
+        }
+    }
+
+    /// Renders frame `i` for the pinhole camera.
+    fn render_pinhole(&self, i: usize) -> Frame {
         let (r, t) = self.world_from_camera(i);
         render::render(
             &self.preset.scene,
@@ -261,6 +288,8 @@ impl Sequence {
             height: self.camera.height,
             renderer: RENDERER_VERSION,
             path_length_m: self.path_length(),
+            distortion: (self.distortion != supermvo_dataset::Distortion::None)
+                .then_some(self.distortion),
         }
     }
 
@@ -345,6 +374,11 @@ impl Sequence {
         );
         let calib_path = seq_dir.join("calib.txt");
         std::fs::write(&calib_path, calib).map_err(io_err(&calib_path))?;
+        let camera_path = seq_dir.join("camera.yaml");
+        let _ = std::fs::remove_file(&camera_path);
+        if let Some(yaml) = self.camera_yaml() {
+            std::fs::write(&camera_path, yaml).map_err(io_err(&camera_path))?;
+        }
         let times: String = (0..self.frames)
             .map(|i| format!("{:.6e}\n", self.time(i)))
             .collect();
@@ -367,6 +401,25 @@ impl Sequence {
             reused: false,
             ..written
         })
+    }
+
+    /// The lens as an ORB-SLAM3-style camera file (`None` for a pinhole camera).
+    fn camera_yaml(&self) -> Option<String> {
+        let c = &self.camera;
+        let head = format!(
+            "%YAML:1.0\n# written by supermvo synth: the lens the frames were rendered with\n\
+             Camera.width: {}\nCamera.height: {}\nCamera.fx: {}\nCamera.fy: {}\nCamera.cx: {}\nCamera.cy: {}\n",
+            c.width, c.height, c.fx, c.fy, c.cx, c.cy
+        );
+        match self.distortion {
+            supermvo_dataset::Distortion::None => None,
+            supermvo_dataset::Distortion::RadTan([k1, k2, p1, p2, k3]) => Some(format!(
+                "{head}Camera.type: \"PinHole\"\nCamera.k1: {k1}\nCamera.k2: {k2}\nCamera.p1: {p1}\nCamera.p2: {p2}\nCamera.k3: {k3}\n"
+            )),
+            supermvo_dataset::Distortion::Equidistant([k1, k2, k3, k4]) => Some(format!(
+                "{head}Camera.type: \"KannalaBrandt8\"\nCamera.k1: {k1}\nCamera.k2: {k2}\nCamera.k3: {k3}\nCamera.k4: {k4}\n"
+            )),
+        }
     }
 
     fn already_written(

@@ -33,10 +33,38 @@ pub struct SynthArgs {
     /// Render again even if an identical sequence is already there.
     #[arg(long)]
     force: bool,
+    /// Render through a lens: radtan (radial-tangential, k1 -0.25 k2 0.06 p1 5e-4 p2 -3e-4)
+    /// or fisheye (equidistant, k1..k4 0.02 -0.01 0.005 -0.001); the lens is written to
+    /// camera.yaml beside calib.txt, which `supermvo run` then uses.
+    #[arg(long, value_enum, default_value = "none")]
+    distortion: LensArg,
     /// No progress bar (as in `run` and `eval`: -q drops what is not a result; what was
     /// written and errors still print).
     #[arg(long, short)]
     quiet: bool,
+}
+
+/// `--distortion`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LensArg {
+    /// A pinhole camera.
+    None,
+    /// Radial-tangential.
+    Radtan,
+    /// Equidistant (fisheye).
+    Fisheye,
+}
+
+impl LensArg {
+    fn distortion(self) -> supermvo_dataset::Distortion {
+        match self {
+            Self::None => supermvo_dataset::Distortion::None,
+            Self::Radtan => supermvo_dataset::Distortion::RadTan([-0.25, 0.06, 5e-4, -3e-4, 0.0]),
+            Self::Fisheye => {
+                supermvo_dataset::Distortion::Equidistant([0.02, -0.01, 0.005, -0.001])
+            }
+        }
+    }
 }
 
 pub fn run(args: &SynthArgs) -> Result<()> {
@@ -52,7 +80,8 @@ pub fn run(args: &SynthArgs) -> Result<()> {
         cx: k.cx * args.scale,
         cy: k.cy * args.scale,
     };
-    let seq = Sequence::new(&args.preset, args.seed, args.frames, camera)?;
+    let seq = Sequence::new(&args.preset, args.seed, args.frames, camera)?
+        .with_distortion(args.distortion.distortion());
     let threads = args
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
