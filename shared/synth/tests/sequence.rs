@@ -2,7 +2,7 @@
 
 use nalgebra::Vector3;
 use std::path::Path;
-use supermvo_dataset::{GrayImage, Sequence};
+use supermvo_dataset::GrayImage;
 use supermvo_synth::render::CameraModel;
 use supermvo_synth::Sequence;
 
@@ -73,7 +73,7 @@ fn projected_lane_dashes_land_on_painted_pixels() {
         let seq = Sequence::new(preset, 3, Some(40), camera(0.5)).unwrap();
         let dir = tempfile::tempdir().unwrap();
         let written = seq.write(dir.path(), 2, false, &|_| {}).unwrap();
-        let kitti = Sequence::open(&written.sequence_dir).unwrap();
+        let kitti = supermvo_dataset::Sequence::open(&written.sequence_dir).unwrap();
         let gt = kitti
             .read_ground_truth(&kitti.default_ground_truth().unwrap())
             .unwrap();
