@@ -21,6 +21,7 @@ mod graph_cmd;
 mod models_cmd;
 mod run_cmd;
 mod synth_cmd;
+mod traj_cmd;
 
 use clap::{Parser, Subcommand};
 
@@ -79,6 +80,8 @@ enum Command {
     Inspect(daemon_cmd::InspectArgs),
     /// Render a synthetic driving sequence with exact ground truth (KITTI layout).
     Synth(synth_cmd::SynthArgs),
+    /// Inspect a trajectory file and convert it between KITTI and TUM (as evo_traj does).
+    Traj(traj_cmd::TrajArgs),
 }
 
 fn main() -> ExitCode {
@@ -101,6 +104,7 @@ fn main() -> ExitCode {
         Command::Monitor(args) => daemon_cmd::monitor(&args),
         Command::Inspect(args) => daemon_cmd::inspect_cmd(&args),
         Command::Synth(args) => synth_cmd::run(&args),
+        Command::Traj(args) => traj_cmd::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
