@@ -33,11 +33,18 @@ enum UnitArg {
 #[derive(Debug, Args)]
 pub struct EvalArgs {
     /// Ground-truth trajectory.
-    #[arg(long)]
-    gt: PathBuf,
+    #[arg(long, required_unless_present = "gt_dir")]
+    gt: Option<PathBuf>,
     /// Estimated trajectory; repeat to compare several (labelled by file name, or NAME=PATH).
-    #[arg(long, required = true)]
+    #[arg(long, required_unless_present = "est_dir")]
     est: Vec<String>,
+    /// A folder of KITTI ground truth (`poses/NN.txt`), evaluated against `--est-dir` as the
+    /// KITTI devkit does: every `NN.txt` of the results, one table with the averages.
+    #[arg(long, requires = "est_dir", conflicts_with_all = ["gt", "est"])]
+    gt_dir: Option<PathBuf>,
+    /// A folder of KITTI-format results (`NN.txt`, one row per frame).
+    #[arg(long, requires = "gt_dir")]
+    est_dir: Option<PathBuf>,
     /// File format. With `euroc`, the ground truth is EuRoC CSV and estimates are TUM.
     #[arg(long, value_enum, default_value = "kitti")]
     format: FormatArg,
@@ -156,6 +163,85 @@ fn print_report(label: &str, ev: &Evaluation) {
     }
 }
 
+/// The KITTI devkit's evaluation of a results folder: every `NN.txt` in `est_dir` against
+/// `gt_dir/NN.txt` (KITTI format, pose for pose), one row each, then the averages over all
+/// segments (the devkit's) and the mean APE.
+fn evaluate_folders(
+    gt_dir: &Path,
+    est_dir: &Path,
+    opts: &supermvo_eval::EvalOptions,
+) -> Result<()> {
+    let mut names: Vec<String> = std::fs::read_dir(est_dir)
+        .with_context(|| format!("reading --est-dir {}", est_dir.display()))?
+        .filter_map(|e| e.ok())
+        .filter_map(|e| e.file_name().into_string().ok())
+        .filter(|n| n.ends_with(".txt"))
+        .collect();
+    names.sort();
+    if names.is_empty() {
+        bail!("--est-dir {}: no NN.txt results", est_dir.display());
+    }
+    outln!(
+        "{:<10} {:>6} {:>9} {:>14} {:>9}",
+        "sequence",
+        "poses",
+        "t_err %",
+        "r_err deg/100m",
+        "APE (m)"
+    );
+    let (mut t_sum, mut r_sum, mut segments, mut apes) = (0.0, 0.0, 0usize, Vec::new());
+    for name in &names {
+        let seq = name.trim_end_matches(".txt");
+        let gt_path = gt_dir.join(name);
+        if !gt_path.is_file() {
+            outln!("{seq:<10} no ground truth at {}", gt_path.display());
+            continue;
+        }
+        let gt = read_trajectory(&gt_path, TrajectoryFormat::Kitti)?;
+        let est = read_trajectory(&est_dir.join(name), TrajectoryFormat::Kitti)?;
+        let ev = evaluate(&gt, &est, opts).with_context(|| {
+            format!(
+                "evaluating {} against {}",
+                est_dir.join(name).display(),
+                gt_path.display()
+            )
+        })?;
+        let r = &ev.report;
+        let ape = r.ape.trans.rmse;
+        apes.push(ape);
+        match &r.kitti {
+            Some(k) => {
+                outln!(
+                    "{seq:<10} {:>6} {:>9.4} {:>14.4} {ape:>9.3}",
+                    r.matched_poses,
+                    k.t_err_pct,
+                    k.r_err_deg_per_100m
+                );
+                t_sum += k.t_err_pct * k.segments as f64;
+                r_sum += k.r_err_deg_per_100m * k.segments as f64;
+                segments += k.segments;
+            }
+            None => outln!(
+                "{seq:<10} {:>6} {:>9} {:>14} {ape:>9.3}",
+                r.matched_poses,
+                "-",
+                "-"
+            ),
+        }
+    }
+    if segments > 0 {
+        let mean_ape = apes.iter().sum::<f64>() / apes.len() as f64;
+        outln!(
+            "{:<10} {:>6} {:>9.4} {:>14.4} {mean_ape:>9.3}",
+            "average",
+            "",
+            t_sum / segments as f64,
+            r_sum / segments as f64
+        );
+    }
+    Ok(())
+}
+
 /// Runs `supermvo eval`.
 pub fn run(args: &EvalArgs) -> Result<()> {
     let cfg = match &args.config {
@@ -192,13 +278,19 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         FormatArg::Tum => TrajectoryFormat::Tum,
         FormatArg::Euroc => TrajectoryFormat::Euroc,
     };
+    if let (Some(gt_dir), Some(est_dir)) = (&args.gt_dir, &args.est_dir) {
+        return evaluate_folders(gt_dir, est_dir, &opts);
+    }
+    let Some(gt_path) = &args.gt else {
+        bail!("give --gt (with --est) or --gt-dir (with --est-dir)");
+    };
     let gt_format = format(args.format);
     let est_format = match (args.est_format, args.format) {
         (Some(f), _) => format(f),
         (None, FormatArg::Euroc) => TrajectoryFormat::Tum,
         (None, f) => format(f),
     };
-    let mut gt = read_trajectory(&args.gt, gt_format).context("reading ground truth")?;
+    let mut gt = read_trajectory(gt_path, gt_format).context("reading ground truth")?;
     if let Some(times) = &args.gt_times {
         if gt_format != TrajectoryFormat::Kitti {
             bail!("--gt-times gives a KITTI ground truth its timestamps; --format {gt_format} files carry their own");
@@ -209,7 +301,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
                 "--gt-times {} has {} timestamps but --gt {} has {} poses; give the times.txt of the same sequence",
                 times.display(),
                 stamps.len(),
-                args.gt.display(),
+                gt_path.display(),
                 gt.poses.len()
             );
         }
@@ -229,7 +321,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
             format!(
                 "evaluating {} against {}",
                 path.display(),
-                args.gt.display()
+                gt_path.display()
             )
         })?;
         print_report(&label, &ev);

@@ -60,3 +60,60 @@ fn kitti_to_tum_and_back_keeps_every_pose() {
         assert!(d < 1e-5, "rotations through quaternions: {d}");
     }
 }
+
+/// `eval --gt-dir POSES --est-dir RESULTS`, as the KITTI devkit evaluates a results folder:
+/// 03's ground truth scaled by 1.1 has no rotation error and a translation error of 10 % of
+/// each segment's chord (less of its length, through the turns), the number `eval --gt
+/// --est` gives for the file alone; a result without ground truth is listed, not an error.
+#[test]
+fn a_results_folder_is_evaluated_as_the_devkit_does() {
+    let Some(poses) = common::shared_data("kitti/poses") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let results = tmp.path().join("results");
+    std::fs::create_dir_all(&results).unwrap();
+    let mut t = read_trajectory(&poses.join("03.txt"), TrajectoryFormat::Kitti).unwrap();
+    for p in t.poses.iter_mut() {
+        p.t *= 1.1;
+    }
+    supermvo_dataset::write_trajectory(&results.join("03.txt"), TrajectoryFormat::Kitti, &t)
+        .unwrap();
+    std::fs::copy(poses.join("03.txt"), results.join("99.txt")).unwrap();
+    let r = common::supermvo(&[
+        "eval",
+        "--gt-dir",
+        poses.to_str().unwrap(),
+        "--est-dir",
+        results.to_str().unwrap(),
+    ]);
+    let out = String::from_utf8_lossy(&r.stdout);
+    assert!(
+        r.status.success(),
+        "{out}{}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+    let row = out.lines().find(|l| l.starts_with("03 ")).unwrap();
+    let cells: Vec<&str> = row.split_whitespace().collect();
+    assert_eq!(cells[1], "300", "{row}");
+    let t_err: f64 = cells[2].parse().unwrap();
+    assert!(t_err > 5.0 && t_err <= 10.0, "{row}");
+    assert_eq!(cells[3], "0.0000", "{row}");
+    let single = common::supermvo(&[
+        "eval",
+        "--gt",
+        poses.join("03.txt").to_str().unwrap(),
+        "--est",
+        results.join("03.txt").to_str().unwrap(),
+    ]);
+    let single = String::from_utf8_lossy(&single.stdout);
+    assert!(
+        single.contains(&format!("t_err {:.4} %", t_err)),
+        "{single}"
+    );
+    assert!(
+        out.contains("99") && out.contains("no ground truth"),
+        "{out}"
+    );
+    assert!(out.lines().any(|l| l.starts_with("average")), "{out}");
+}
