@@ -3,7 +3,9 @@
 //! for a restarted tracker, and writes the trajectory at the end of the stream or on SIGTERM.
 //!
 //! A restarted back end reads `frames.csv` back and continues after its last line.
-//! Loop closure and the pose graph are to come here.
+//! Loop closure and the pose graph run in the tracking process today, beside the tracker, so
+//! that their corrections reach it before the next frame (see `tracking.rs`); moving them and
+//! local mapping here is issue 21's work.
 
 use crate::common::{StageArgs, StageContext};
 use crate::inbox::Inbox;
