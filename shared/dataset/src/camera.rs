@@ -4,7 +4,8 @@
 //! `equidistant`, `distortion_coefficients: [...]`), with the radial-tangential
 //! (Brown-Conrady, OpenCV's `k1 k2 p1 p2 k3`) and equidistant (Kannala-Brandt, OpenCV
 //! fisheye's `k1..k4`) models. Images are remapped once to the pinhole camera of the same
-//! intrinsics ([`Undistorter`]), so everything after loading sees a pinhole camera.
+//! intrinsics ([`Undistorter`], a [`Remap`]), so everything after loading sees a pinhole
+//! camera.
 //!
 //! Only the keys above are read (OpenCV's `%YAML:1.0` header and `!!opencv-matrix` tags are
 //! not standard YAML, so a general parser would refuse these files); other keys are ignored.
@@ -282,30 +283,29 @@ fn yaml_keys(text: &str) -> BTreeMap<String, (usize, String)> {
     out
 }
 
-/// Remaps distorted images to the pinhole camera of the same intrinsics and size, with a
-/// lookup table computed once (bilinear sampling; pixels whose source lies outside the
-/// image are black).
+/// A resampling of images: per output pixel, the position in the input image it shows
+/// (NaN where that falls outside), computed once; bilinear sampling.
 #[derive(Debug, Clone)]
-pub struct Undistorter {
+pub struct Remap {
     width: usize,
     height: usize,
-    /// Per output pixel, the source position, or NaN outside.
     source: Vec<(f32, f32)>,
 }
 
-impl Undistorter {
-    /// The map for `width x height` images of `camera` (`None` for a pinhole camera).
-    pub fn new(camera: &Camera, width: usize, height: usize) -> Option<Self> {
-        if camera.distortion == Distortion::None {
-            return None;
-        }
-        let k = camera.calib;
+impl Remap {
+    /// The remap of `width x height` images of camera `k` in which the output pixel at
+    /// normalised coordinates `(x, y)` shows the input at normalised `lens(x, y)`.
+    pub fn new(
+        k: &Calibration,
+        width: usize,
+        height: usize,
+        lens: impl Fn(f64, f64) -> (f64, f64),
+    ) -> Self {
         let mut source = Vec::with_capacity(width * height);
         for v in 0..height {
             for u in 0..width {
-                let (x, y) = ((u as f64 - k.cx) / k.fx, (v as f64 - k.cy) / k.fy);
-                let (xd, yd) = camera.distortion.distort(x, y);
-                let (su, sv) = (k.fx * xd + k.cx, k.fy * yd + k.cy);
+                let (x, y) = lens((u as f64 - k.cx) / k.fx, (v as f64 - k.cy) / k.fy);
+                let (su, sv) = (k.fx * x + k.cx, k.fy * y + k.cy);
                 let inside =
                     su >= 0.0 && sv >= 0.0 && su <= (width - 1) as f64 && sv <= (height - 1) as f64;
                 source.push(if inside {
@@ -315,45 +315,75 @@ impl Undistorter {
                 });
             }
         }
-        Some(Self {
+        Self {
             width,
             height,
             source,
-        })
+        }
     }
 
-    /// The undistorted image; `img` must have the map's size.
-    pub fn apply(&self, img: &GrayImage, path: &Path) -> Result<GrayImage, DatasetError> {
-        if (img.width, img.height) != (self.width, self.height) {
-            return Err(DatasetError::invalid(
-                path,
-                format!(
-                    "{}x{} differs from the {}x{} the camera file was set up for",
-                    img.width, img.height, self.width, self.height
-                ),
-            ));
-        }
-        let w = self.width;
-        let data = self
-            .source
+    /// `(width, height)` of the images it takes and gives.
+    pub fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    /// Per output pixel (row by row), the input position it shows, or `None` outside.
+    pub fn sources(&self) -> impl Iterator<Item = Option<(f32, f32)>> + '_ {
+        self.source
             .iter()
-            .map(|&(su, sv)| {
-                if su.is_nan() {
+            .map(|&(su, sv)| (!su.is_nan()).then_some((su, sv)))
+    }
+
+    /// The resampled intensities of a `width x height` image (0 outside the input).
+    pub fn sample(&self, data: &[u8]) -> Vec<u8> {
+        let (w, h) = (self.width, self.height);
+        self.sources()
+            .map(|src| {
+                let Some((su, sv)) = src else {
                     return 0;
-                }
+                };
                 let (x0, y0) = (su.floor() as usize, sv.floor() as usize);
-                let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(self.height - 1));
+                let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
                 let (fx, fy) = (su - x0 as f32, sv - y0 as f32);
-                let p = |x: usize, y: usize| img.data[y * w + x] as f32;
+                let p = |x: usize, y: usize| data[y * w + x] as f32;
                 let top = p(x0, y0) * (1.0 - fx) + p(x1, y0) * fx;
                 let bottom = p(x0, y1) * (1.0 - fx) + p(x1, y1) * fx;
                 (top * (1.0 - fy) + bottom * fy).round() as u8
             })
-            .collect();
+            .collect()
+    }
+}
+
+/// Remaps distorted images to the pinhole camera of the same intrinsics and size.
+#[derive(Debug, Clone)]
+pub struct Undistorter(Remap);
+
+impl Undistorter {
+    /// The map for `width x height` images of `camera` (`None` for a pinhole camera).
+    pub fn new(camera: &Camera, width: usize, height: usize) -> Option<Self> {
+        if camera.distortion == Distortion::None {
+            return None;
+        }
+        let lens = |x, y| camera.distortion.distort(x, y);
+        Some(Self(Remap::new(&camera.calib, width, height, lens)))
+    }
+
+    /// The undistorted image; `img` must have the map's size.
+    pub fn apply(&self, img: &GrayImage, path: &Path) -> Result<GrayImage, DatasetError> {
+        let (w, h) = self.0.size();
+        if (img.width, img.height) != (w, h) {
+            return Err(DatasetError::invalid(
+                path,
+                format!(
+                    "{}x{} differs from the {w}x{h} the camera file was set up for",
+                    img.width, img.height
+                ),
+            ));
+        }
         Ok(GrayImage {
             width: w,
-            height: self.height,
-            data,
+            height: h,
+            data: self.0.sample(&img.data),
         })
     }
 }

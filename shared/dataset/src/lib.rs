@@ -16,7 +16,7 @@ mod kitti;
 mod sequence;
 mod trajectory;
 
-pub use camera::{Camera, Distortion, Undistorter};
+pub use camera::{Camera, Distortion, Remap, Undistorter};
 pub use error::DatasetError;
 pub use image::GrayImage;
 pub use kitti::{image_files, read_times, Calibration};

@@ -260,32 +260,31 @@ fn camera_file(dir: &Path, given: Option<&Path>, layout: &str) -> Result<PathBuf
 
 /// EuRoC `data.csv`: `timestamp [ns],filename` lines after a `#` header.
 fn read_euroc_list(csv: &Path, data: &Path) -> Result<(Vec<f64>, Vec<PathBuf>), DatasetError> {
-    let text = std::fs::read_to_string(csv).map_err(|e| DatasetError::io(csv, e))?;
-    let mut times = Vec::new();
-    let mut images = Vec::new();
-    for (i, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
-        let (t, name) = line
-            .split_once(',')
-            .ok_or_else(|| DatasetError::parse(csv, i + 1, "expected 'timestamp [ns],filename'"))?;
-        let ns: u64 = t.trim().parse().map_err(|_| {
-            DatasetError::parse(
-                csv,
-                i + 1,
-                format!("'{t}' is not a timestamp in nanoseconds"),
-            )
-        })?;
-        times.push(ns as f64 * 1e-9);
-        images.push(data.join(name.trim()));
-    }
-    Ok((times, images))
+    read_frame_list(csv, data, "'timestamp [ns],filename'", |line| {
+        let (t, name) = line.split_once(',')?;
+        let ns: u64 = t.trim().parse().ok()?;
+        Some((ns as f64 * 1e-9, name.trim()))
+    })
 }
 
 /// TUM `rgb.txt`: `timestamp filename` lines, `#` comments.
 fn read_tum_list(list: &Path, dir: &Path) -> Result<(Vec<f64>, Vec<PathBuf>), DatasetError> {
+    read_frame_list(list, dir, "'timestamp filename' (seconds)", |line| {
+        let mut f = line.split_whitespace();
+        let (t, name) = (f.next()?, f.next()?);
+        Some((t.parse().ok()?, name))
+    })
+}
+
+/// A list of frames, one `(timestamp in seconds, file name under base)` per line as `parse`
+/// reads it; blank lines and `#` comments skipped, a line `parse` refuses reported with its
+/// number and the `expected` form.
+fn read_frame_list(
+    list: &Path,
+    base: &Path,
+    expected: &str,
+    parse: impl Fn(&str) -> Option<(f64, &str)>,
+) -> Result<(Vec<f64>, Vec<PathBuf>), DatasetError> {
     let text = std::fs::read_to_string(list).map_err(|e| DatasetError::io(list, e))?;
     let mut times = Vec::new();
     let mut images = Vec::new();
@@ -294,19 +293,11 @@ fn read_tum_list(list: &Path, dir: &Path) -> Result<(Vec<f64>, Vec<PathBuf>), Da
         if line.is_empty() || line.starts_with('#') {
             continue;
         }
-        let mut f = line.split_whitespace();
-        let (Some(t), Some(name)) = (f.next(), f.next()) else {
-            return Err(DatasetError::parse(
-                list,
-                i + 1,
-                "expected 'timestamp filename'",
-            ));
-        };
-        let t: f64 = t.parse().map_err(|_| {
-            DatasetError::parse(list, i + 1, format!("'{t}' is not a timestamp in seconds"))
+        let (t, name) = parse(line).ok_or_else(|| {
+            DatasetError::parse(list, i + 1, format!("'{line}': expected {expected}"))
         })?;
         times.push(t);
-        images.push(dir.join(name));
+        images.push(base.join(name));
     }
     Ok((times, images))
 }

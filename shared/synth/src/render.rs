@@ -211,12 +211,9 @@ fn clip_near(poly: &[V3]) -> Vec<V3> {
 }
 
 /// Where a lens puts the pinhole image: per pixel of the distorted image, the position in
-/// the pinhole image it shows (NaN outside it). Computed once per sequence.
+/// the pinhole image it shows. Computed once per sequence.
 #[derive(Debug, Clone)]
-pub struct LensMap {
-    width: usize,
-    source: Vec<(f32, f32)>,
-}
+pub struct LensMap(supermvo_dataset::Remap);
 
 impl LensMap {
     /// The map of `distortion` for camera `cam` (`None` for a pinhole lens).
@@ -224,48 +221,34 @@ impl LensMap {
         if *distortion == supermvo_dataset::Distortion::None {
             return None;
         }
-        let (w, h) = (cam.width, cam.height);
-        let mut source = Vec::with_capacity(w * h);
-        for v in 0..h {
-            for u in 0..w {
-                let (xd, yd) = ((u as f64 - cam.cx) / cam.fx, (v as f64 - cam.cy) / cam.fy);
-                let (x, y) = distortion.undistort(xd, yd);
-                let (su, sv) = (cam.fx * x + cam.cx, cam.fy * y + cam.cy);
-                let inside = su >= 0.0 && sv >= 0.0 && su <= (w - 1) as f64 && sv <= (h - 1) as f64;
-                source.push(if inside {
-                    (su as f32, sv as f32)
-                } else {
-                    (f32::NAN, f32::NAN)
-                });
-            }
-        }
-        Some(Self { width: w, source })
+        let k = supermvo_dataset::Calibration {
+            fx: cam.fx,
+            fy: cam.fy,
+            cx: cam.cx,
+            cy: cam.cy,
+        };
+        let lens = |x, y| distortion.undistort(x, y);
+        Some(Self(supermvo_dataset::Remap::new(
+            &k, cam.width, cam.height, lens,
+        )))
     }
 
     /// `frame` (rendered for the pinhole camera) as the lens shows it: bilinear for
     /// intensity, nearest for depth; black and infinitely far outside the pinhole image.
     pub fn apply(&self, frame: &Frame) -> Frame {
-        let (w, h) = (frame.width, frame.height);
-        debug_assert_eq!(w, self.width);
-        let mut gray = vec![0u8; w * h];
-        let mut depth = vec![f32::INFINITY; w * h];
-        for (i, &(su, sv)) in self.source.iter().enumerate() {
-            if su.is_nan() {
-                continue;
-            }
-            let (x0, y0) = (su.floor() as usize, sv.floor() as usize);
-            let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
-            let (fx, fy) = (su - x0 as f32, sv - y0 as f32);
-            let p = |x: usize, y: usize| frame.gray[y * w + x] as f32;
-            let top = p(x0, y0) * (1.0 - fx) + p(x1, y0) * fx;
-            let bottom = p(x0, y1) * (1.0 - fx) + p(x1, y1) * fx;
-            gray[i] = (top * (1.0 - fy) + bottom * fy).round() as u8;
-            depth[i] = frame.depth[(sv.round() as usize) * w + su.round() as usize];
-        }
+        let w = frame.width;
+        let depth = self
+            .0
+            .sources()
+            .map(|src| match src {
+                Some((su, sv)) => frame.depth[(sv.round() as usize) * w + su.round() as usize],
+                None => f32::INFINITY,
+            })
+            .collect();
         Frame {
             width: w,
-            height: h,
-            gray,
+            height: frame.height,
+            gray: self.0.sample(&frame.gray),
             depth,
         }
     }

@@ -6,7 +6,7 @@
 //! all and tracked as before: the matcher runs where geometry cannot guide.
 
 use super::tracking::{LandmarkMatches, PoseFit};
-use super::{frame::bearing, FrameMeta, FrameOutput, Keyframe, Tracker, TrackingState};
+use super::{FrameMeta, FrameOutput, Keyframe, Tracker, TrackingState};
 use supermvo_geometry::{Mat3, Vec3};
 use supermvo_inference::Features;
 
@@ -139,19 +139,6 @@ impl Tracker {
         if pairs.len() < self.cfg.min_tracked {
             pairs = search(2.0 * self.cfg.projection_radius_px);
         }
-        let points = pairs
-            .iter()
-            .map(|(_, id)| self.map.landmarks[id].p)
-            .collect();
-        let bearings = pairs
-            .iter()
-            .map(|&(b, _)| bearing(&self.calib, &cur.keypoints[b]))
-            .collect();
-        LandmarkMatches {
-            from_keyframe: pairs.len(),
-            pairs,
-            points,
-            bearings,
-        }
+        self.landmark_matches(pairs, cur)
     }
 }

@@ -96,6 +96,16 @@ impl Tracker {
             .iter()
             .filter_map(|&(a, b)| kf.landmark[a].map(|id| (b, id)))
             .collect();
+        self.landmark_matches(pairs, cur)
+    }
+
+    /// `(keypoint of cur, landmark id)` pairs with the landmarks' positions and the
+    /// keypoints' bearings, all counted as the first set (`from_keyframe`).
+    pub(super) fn landmark_matches(
+        &self,
+        pairs: Vec<(usize, usize)>,
+        cur: &Features,
+    ) -> LandmarkMatches {
         let points = pairs
             .iter()
             .map(|(_, id)| self.map.landmarks[id].p)
