@@ -137,7 +137,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
     let mut feats: Inbox<Option<Features>> = Inbox::new(start, 1);
     let mut pairs: Inbox<Vec<MatchEntry>> = Inbox::new(start, 1);
     let gap = Duration::from_millis(cfg.gap_timeout_ms);
-    // the frame whose matches were last asked for
+    // the last frame tried without matches (and, when declined, asked for)
     let mut requested = None;
     ctx.started();
     while ctx.wait() {
@@ -172,10 +172,15 @@ pub fn run(args: &StageArgs) -> Result<()> {
                     ctx.frame_done(&h, t_in, feats.len());
                     continue;
                 }
-                // matched after all (or the matching stage may not know yet that it must,
-                // after a restart): ask; it ignores requests for what it matches anyway
-                let reference = tracker.reference().map_or(-1, |(r, _)| r as i64);
-                request(&requests, fh, reference)?;
+                // matched after all: ask. When the tracker wants matches at once, this
+                // process's decision on the previous frame told the matching stage so; only
+                // the first frame after a (re)start, whose previous decision an earlier
+                // process made, is asked for too (requests for frames the matching stage
+                // matches anyway are ignored).
+                if !tracker.wants_matches() || fh.seq == start {
+                    let reference = tracker.reference().map_or(-1, |(r, _)| r as i64);
+                    request(&requests, fh, reference)?;
+                }
                 requested = Some(fh.seq);
             }
             if !(feats.ready() && pairs.ready()) {
