@@ -7,6 +7,8 @@ cd "$(dirname "$0")/.."
 bash tools/setup.sh
 cargo build --release --workspace --bins
 ./target/release/supermvo models fetch onnxruntime xfeat lighterglue lighterglue-l3 aliked lightglue
+# the independent Python readers the diagnostic tests use (iceoryx2 bindings, mcap)
+bash tools/python_tools.sh
 # SuperPoint and SuperGlue exporters (random weights in the official layout) against NumPy
 # forward passes written from the papers
 python3 tools/models/test_superpoint_superglue.py

@@ -12,6 +12,8 @@
 //! stage answers each `seq` exactly once with a message whose [`Status`] says what became of
 //! the frame, so a frame is always processed or reported, never silently missing.
 
+pub mod layout;
+
 use iceoryx2::prelude::*;
 use std::time::{SystemTime, UNIX_EPOCH};
 

@@ -180,3 +180,23 @@ pub fn run_inprocess(seq: &Path, out: &Path, extra: &[&str]) -> serde_json::Valu
     let text = std::fs::read_to_string(out.join("report.json")).expect("report.json");
     serde_json::from_str(&text).expect("report.json is JSON")
 }
+
+/// The folder `tools/python_tools.sh` installs the independent Python readers into (for
+/// `PYTHONPATH`); when they are not installed, prints why and returns `None` (the test then
+/// skips), unless `SUPERMVO_REQUIRE_SHARED=1`, in which case the test fails.
+pub fn python_tools() -> Option<PathBuf> {
+    let dir = cache_dir().join("python-tools");
+    if dir.join(".pins").is_file() {
+        return Some(dir);
+    }
+    assert!(
+        std::env::var("SUPERMVO_REQUIRE_SHARED").as_deref() != Ok("1"),
+        "{} is missing: run 'bash tools/python_tools.sh' (tools/test.sh does)",
+        dir.display()
+    );
+    eprintln!(
+        "SKIP: Python readers not installed ({}); run 'bash tools/python_tools.sh'",
+        dir.display()
+    );
+    None
+}

@@ -1,0 +1,89 @@
+//! A client no one here wrote reads the daemon's shared memory: `examples/python/
+//! pose_subscriber.py` (the official iceoryx2 Python bindings and ctypes, nothing from this
+//! workspace) attached to a lossless KITTI 07 run receives every frame's result, in order,
+//! and every pose it prints equals the run's `trajectory.kitti.txt` bit for bit.
+
+mod common;
+
+use std::process::{Command, Stdio};
+
+#[test]
+fn the_python_subscriber_receives_every_pose_bit_for_bit() {
+    let Some(seq) = common::shared_data("kitti/sequences/07") else {
+        return;
+    };
+    let Some(pythonpath) = common::python_tools() else {
+        return;
+    };
+    if !common::models_ready() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let name = format!("pysub-{}", std::process::id());
+    // the subscriber first: it waits for the pipeline's services to appear
+    let script = common::root().join("examples/python/pose_subscriber.py");
+    let subscriber = Command::new("python3")
+        .arg(&script)
+        .args(["--name", &name, "--timeout", "120"])
+        .env("PYTHONPATH", &pythonpath)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("python3");
+    let out = tmp.path().join("out");
+    let run = common::supermvo(&[
+        "run",
+        seq.to_str().unwrap(),
+        "--name",
+        &name,
+        "-q",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let printed = subscriber.wait_with_output().unwrap();
+    let text = String::from_utf8_lossy(&printed.stdout);
+    assert!(
+        printed.status.success(),
+        "{text}\n{}",
+        String::from_utf8_lossy(&printed.stderr)
+    );
+
+    let trajectory: Vec<Vec<f64>> = std::fs::read_to_string(out.join("trajectory.kitti.txt"))
+        .unwrap()
+        .lines()
+        .map(|l| l.split_whitespace().map(|v| v.parse().unwrap()).collect())
+        .collect();
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(
+        lines.last().copied(),
+        Some(format!("end of stream after {} frames", trajectory.len()).as_str()),
+        "{text}"
+    );
+    let frames = &lines[..lines.len() - 1];
+    assert_eq!(frames.len(), trajectory.len(), "one line per frame: {text}");
+    let mut posed = 0;
+    for (i, line) in frames.iter().enumerate() {
+        let f: Vec<&str> = line.split_whitespace().collect();
+        // in order, without gaps: seq and frame index both count up from 0
+        assert_eq!(f[0], i.to_string(), "{line}");
+        assert_eq!(f[1], i.to_string(), "{line}");
+        if f[3] == "1" {
+            let pose: Vec<f64> = f[5..].iter().map(|v| v.parse().unwrap()).collect();
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&pose), bits(&trajectory[i]), "frame {i}: {line}");
+            posed += 1;
+        } else {
+            assert_eq!(f[5], "-", "{line}");
+        }
+    }
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let unposed = report["unposed_frames"].as_array().unwrap().len();
+    assert_eq!(posed + unposed, trajectory.len(), "{text}");
+    assert!(posed > 140, "most of 07 is posed: {posed}");
+}
