@@ -6,7 +6,7 @@
 set -euo pipefail
 cache="${SUPERMVO_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/supermvo}"
 target="$cache/python-tools"
-pins=(iceoryx2==0.10.0 mcap==1.6.0 mcap-protobuf-support==0.6.0 protobuf==7.36.2 websockets==17.4)
+pins=(iceoryx2==0.10.0 mcap==1.6.0 mcap-protobuf-support==0.6.0 protobuf==7.36.2 websockets==17.4 pillow==12.0.0)
 stamp="$target/.pins"
 if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "${pins[*]}" ]; then
   exit 0

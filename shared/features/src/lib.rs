@@ -63,3 +63,37 @@ pub struct Matches {
     /// Confidence of each pair.
     pub scores: Vec<f32>,
 }
+
+/// What a diagnostic view draws of one tracked frame (`supermvo run --record`, `supermvo
+/// record`, `supermvo view`): its keypoints, the flow of its matches to the reference
+/// keyframe, and, when it became a keyframe, the local map's points.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FrameView {
+    /// Keypoints of the frame, pixels.
+    pub keypoints: Vec<[f32; 2]>,
+    /// Per match to the reference keyframe: `[x_ref, y_ref, x, y]`, pixels (none for a
+    /// frame tracked by projection without the matcher).
+    pub flow: Vec<[f32; 4]>,
+    /// Positions (world frame) of the local map's points, on keyframes only.
+    pub map_points: Option<Vec<[f32; 3]>>,
+}
+
+impl FrameView {
+    /// The view of frame `cur` with `matches` to `reference`.
+    pub fn new(cur: &Features, reference: Option<(&Features, &Matches)>) -> Self {
+        let flow = reference.map_or_else(Vec::new, |(r, m)| {
+            m.pairs
+                .iter()
+                .filter_map(|&(a, b)| {
+                    let (p, q) = (r.keypoints.get(a)?, cur.keypoints.get(b)?);
+                    Some([p[0], p[1], q[0], q[1]])
+                })
+                .collect()
+        });
+        Self {
+            keypoints: cur.keypoints.clone(),
+            flow,
+            map_points: None,
+        }
+    }
+}

@@ -24,7 +24,7 @@ pub mod xfeat;
 
 pub use error::InferenceError;
 pub use supermvo_dataset::GrayImage;
-pub use supermvo_features::{descriptor_distance, Features, Matches};
+pub use supermvo_features::{descriptor_distance, Features, FrameView, Matches};
 
 /// Detects keypoints and computes descriptors.
 pub trait Extractor {

@@ -3,7 +3,7 @@
 
 use crate::stage::Stage;
 use crate::tracker::{output_pose, FrameInput, FrameMeta, FrameOutput, Tracker};
-use supermvo_inference::{Extractor, InferenceError, Matcher};
+use supermvo_inference::{Extractor, FrameView, InferenceError, Matcher};
 
 /// Extractor, matcher and tracker in one process, one after the other: the reference
 /// implementation the multi-process daemon must reproduce bit for bit.
@@ -12,6 +12,9 @@ pub struct VoPipeline {
     matcher: Box<dyn Matcher + Send>,
     tracker: Tracker,
     loops: Option<crate::loops::LoopCloser>,
+    /// Whether each frame's [`FrameView`] is kept (for recording), and the last one.
+    keep_views: bool,
+    view: Option<FrameView>,
 }
 
 impl std::fmt::Debug for VoPipeline {
@@ -34,7 +37,21 @@ impl VoPipeline {
             matcher,
             tracker,
             loops,
+            keep_views: false,
+            view: None,
         }
+    }
+
+    /// Keeps a [`FrameView`] of every frame (keypoints, match flow, the map's points on
+    /// keyframes) for [`VoPipeline::take_view`]; off by default, as it copies the keypoints.
+    pub fn keep_views(mut self) -> Self {
+        self.keep_views = true;
+        self
+    }
+
+    /// The last frame's view, when views are kept.
+    pub fn take_view(&mut self) -> Option<FrameView> {
+        self.view.take()
     }
 
     /// The loop closer, when there is one.
@@ -76,10 +93,19 @@ impl Stage for VoPipeline {
             index: input.index,
             stamp: input.stamp,
         };
+        let mut view = self.keep_views.then(|| FrameView::new(&cur, None));
         let matcher = &mut self.matcher;
         let out = self.tracker.track_frame(meta, cur, |reference, cur| {
-            matcher.match_features(reference, cur)
+            let m = matcher.match_features(reference, cur)?;
+            if let Some(v) = view.as_mut() {
+                *v = FrameView::new(cur, Some((reference, &m)));
+            }
+            Ok(m)
         })?;
+        if let Some(v) = view.as_mut().filter(|_| out.keyframe) {
+            v.map_points = Some(self.tracker.map_points());
+        }
+        self.view = view;
         if let Some(loops) = self.loops.as_mut() {
             close_loops(loops, &mut self.tracker, &out);
         }

@@ -52,6 +52,11 @@ impl<S: Stage> Timed<S> {
         &self.stage
     }
 
+    /// The wrapped stage, mutably.
+    pub fn inner_mut(&mut self) -> &mut S {
+        &mut self.stage
+    }
+
     /// Median call duration in milliseconds (NaN before the first call).
     pub fn median_ms(&self) -> f64 {
         let mut v = self.durations_ms.clone();

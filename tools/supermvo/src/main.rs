@@ -19,6 +19,7 @@ mod eval_cmd;
 mod features_cmd;
 mod graph_cmd;
 mod models_cmd;
+mod record_cmd;
 mod run_cmd;
 mod synth_cmd;
 mod traj_cmd;

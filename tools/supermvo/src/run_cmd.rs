@@ -2,6 +2,7 @@
 //! (stages over iceoryx2, under the supervisor) or in one process. Both give the same
 //! trajectory; the report, plots and evaluation are the same.
 
+use crate::record_cmd::InprocessRecording;
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use std::path::{Path, PathBuf};
@@ -111,6 +112,8 @@ pub struct RunArgs {
     /// summary, the evaluation and errors still print).
     #[arg(long, short)]
     quiet: bool,
+    #[command(flatten)]
+    recording: crate::record_cmd::RunRecordArgs,
 }
 
 impl RunArgs {
@@ -348,12 +351,20 @@ fn run_inprocess(
     let loops = p
         .loop_closure
         .then(|| LoopCloser::new(seq.calib, LoopConfig::default()));
-    let mut vo = Timed::new(VoPipeline::new(
+    let mut recording = match &args.recording.record {
+        Some(path) => Some(InprocessRecording::create(path, args.recording.options())?),
+        None => None,
+    };
+    let mut pipeline = VoPipeline::new(
         features::extractor(p)?,
         matching::matcher(p)?,
         tracker,
         loops,
-    ));
+    );
+    if recording.is_some() {
+        pipeline = pipeline.keep_views();
+    }
+    let mut vo = Timed::new(pipeline);
     let first = seq.load_frame(0)?;
     let bar = progress_bar(args.quiet, n);
     let mut outputs = Vec::with_capacity(n);
@@ -386,16 +397,30 @@ fn run_inprocess(
                 continue;
             }
         };
+        let recorded_image = recording.as_ref().map(|_| image.clone());
         let out = vo.call(FrameInput {
             index: i,
             stamp: seq.times[i],
             image,
         })?;
+        if let Some(r) = recording.as_mut() {
+            let view = vo.inner_mut().take_view();
+            let ms = vo.durations_ms().last().copied().unwrap_or(f64::NAN);
+            let loops = vo
+                .inner()
+                .loop_closer()
+                .map(|c| c.loops())
+                .unwrap_or_default();
+            r.frame(&out, recorded_image.as_ref(), view.as_ref(), ms, &loops);
+        }
         bar.set_message(format!("{:?}, {} landmarks", out.state, out.landmarks));
         bar.inc(1);
         outputs.push(out);
     }
     bar.finish_and_clear();
+    if let Some(r) = recording {
+        r.finish()?;
+    }
     let closer = vo.inner().loop_closer();
     // every frame's pose (moved by the loop corrections when loops are closed), by index
     let posed: std::collections::BTreeMap<usize, supermvo_geometry::Pose> = match closer {

@@ -137,6 +137,15 @@ impl Tracker {
         self.keyframe.as_ref().map(|k| (k.frame, &k.features))
     }
 
+    /// Positions (world frame) of the local map's landmarks, for diagnostic views.
+    pub fn map_points(&self) -> Vec<[f32; 3]> {
+        self.map
+            .landmarks
+            .values()
+            .map(|l| l.p.cast::<f32>().into())
+            .collect()
+    }
+
     /// Whether the next frame must come with the matcher's matches to [`Tracker::reference`]
     /// (otherwise [`Tracker::track_without_matches`] is tried first): always with
     /// `match_every_frame`; otherwise while initialising, after a lost frame, and when there
