@@ -291,6 +291,81 @@ pub struct Progress {
     pub cpu_ns: u64,
 }
 
+/// The user header of a `view` message: the frame, the tracker's result, the lengths of the
+/// payload's parts ([`ViewLayout`]) and the loop closed at this frame, if any.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("supermvo::ViewHeader")]
+pub struct ViewHeader {
+    /// The frame (seq, index, stamp, stage times).
+    pub frame: FrameHeader,
+    /// The tracker's result.
+    pub pose: PoseMsg,
+    /// Keypoints in the payload.
+    pub keypoints: u32,
+    /// Flow lines (matches to the reference keyframe) in the payload.
+    pub flow: u32,
+    /// Map points in the payload (keyframes only).
+    pub map_points: u32,
+    /// 1 when `map_points` holds the local map (a keyframe).
+    pub has_map: u32,
+    /// Frame index of the keyframe that closed a loop here, or -1.
+    pub loop_query: i64,
+    /// Frame index of the earlier keyframe it recognised, or -1.
+    pub loop_match: i64,
+}
+
+/// How a [`supermvo_features::FrameView`] lies in the `view` payload: `2 * keypoints`
+/// coordinates, `4 * flow` values (`x_ref, y_ref, x, y` per match), `3 * map_points`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ViewLayout;
+
+impl ViewLayout {
+    /// Payload length of `v`.
+    pub fn len(v: &supermvo_features::FrameView) -> usize {
+        2 * v.keypoints.len() + 4 * v.flow.len() + 3 * v.map_points.as_ref().map_or(0, Vec::len)
+    }
+
+    /// Writes `v` into `out` (of length [`ViewLayout::len`]) and its counts into `h`.
+    pub fn write(v: &supermvo_features::FrameView, h: &mut ViewHeader, out: &mut [f32]) {
+        let points = v.map_points.as_deref().unwrap_or_default();
+        (h.keypoints, h.flow, h.map_points) = (
+            v.keypoints.len() as u32,
+            v.flow.len() as u32,
+            points.len() as u32,
+        );
+        h.has_map = v.map_points.is_some() as u32;
+        let values = v
+            .keypoints
+            .iter()
+            .flatten()
+            .chain(v.flow.iter().flatten())
+            .chain(points.iter().flatten());
+        for (o, x) in out.iter_mut().zip(values) {
+            *o = *x;
+        }
+    }
+
+    /// Reads the view back; `None` when the payload disagrees with the header.
+    pub fn read(h: &ViewHeader, data: &[f32]) -> Option<supermvo_features::FrameView> {
+        let (k, f, m) = (h.keypoints as usize, h.flow as usize, h.map_points as usize);
+        if data.len() != 2 * k + 4 * f + 3 * m {
+            return None;
+        }
+        let (kp, rest) = data.split_at(2 * k);
+        let (fl, mp) = rest.split_at(4 * f);
+        Some(supermvo_features::FrameView {
+            keypoints: kp.chunks_exact(2).map(|c| [c[0], c[1]]).collect(),
+            flow: fl
+                .chunks_exact(4)
+                .map(|c| [c[0], c[1], c[2], c[3]])
+                .collect(),
+            map_points: (h.has_map == 1)
+                .then(|| mp.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()),
+        })
+    }
+}
+
 /// Kinds of [`Progress`] message.
 #[repr(u32)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -443,11 +518,17 @@ pub enum Topic {
     Progress,
     /// `u64` liveness token, created by the supervisor while it runs.
     Control,
+    /// `[f32]` diagnostic view of each tracked frame ([`ViewLayout`], header [`ViewHeader`]),
+    /// tracking → `supermvo record` / `view`; lossy, published only while someone listens.
+    View,
+    /// `[u8]` camera images for diagnostic views, ingest → `supermvo record` / `view`; lossy,
+    /// published only while someone listens.
+    ViewImages,
 }
 
 impl Topic {
     /// Every topic.
-    pub const ALL: [Topic; 8] = [
+    pub const ALL: [Topic; 10] = [
         Topic::Frames,
         Topic::Features,
         Topic::Matches,
@@ -456,6 +537,8 @@ impl Topic {
         Topic::Backend,
         Topic::Progress,
         Topic::Control,
+        Topic::View,
+        Topic::ViewImages,
     ];
 
     /// Name within the pipeline.
@@ -469,6 +552,8 @@ impl Topic {
             Topic::Backend => "backend",
             Topic::Progress => "progress",
             Topic::Control => "control",
+            Topic::View => "view",
+            Topic::ViewImages => "view_images",
         }
     }
 }
@@ -479,6 +564,9 @@ pub type Ipc = ipc::Service;
 pub type IpcNode = Node<Ipc>;
 
 type PubSub<P> = iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, P, ()>;
+/// The `view` service's port factory.
+pub type PubSubView =
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, [f32], ViewHeader>;
 type PubSubH<P> =
     iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, P, FrameHeader>;
 
@@ -557,6 +645,32 @@ impl Services {
                 buffer: 1024,
                 safe_overflow: true,
             },
+            // views: never block a stage; a little history for a viewer that attaches late
+            Topic::View => Qos {
+                history: 4,
+                buffer: 32,
+                safe_overflow: true,
+            },
+            Topic::ViewImages => Qos {
+                history: 2,
+                buffer: 8,
+                safe_overflow: true,
+            },
+        }
+    }
+
+    /// Opens (or, with `create`, opens or creates) the `view` topic.
+    pub fn view_topic(&self, node: &IpcNode, create: bool) -> Result<PubSubView, MessageError> {
+        let topic = Topic::View;
+        let b = Self::qos(topic).apply(
+            node.service_builder(&self.service_name(topic)?)
+                .publish_subscribe::<[f32]>()
+                .user_header::<ViewHeader>(),
+        );
+        if create {
+            b.open_or_create().map_err(|e| self.open_error(topic, e))
+        } else {
+            b.open().map_err(|e| self.open_error(topic, e))
         }
     }
 
@@ -693,6 +807,27 @@ mod tests {
             FeatureLayout::read(&h, &buf),
             Err(MessageError::FeatureLayout { .. })
         ));
+    }
+
+    #[test]
+    fn views_round_trip_through_the_flat_layout() {
+        let v = supermvo_features::FrameView {
+            keypoints: vec![[1.0, 2.0], [3.0, 4.0]],
+            flow: vec![[5.0, 6.0, 7.0, 8.0]],
+            map_points: Some(vec![[9.0, 10.0, 11.0]]),
+        };
+        let mut h = ViewHeader::default();
+        let mut buf = vec![0.0; ViewLayout::len(&v)];
+        ViewLayout::write(&v, &mut h, &mut buf);
+        assert_eq!(ViewLayout::read(&h, &buf), Some(v.clone()));
+        let no_map = supermvo_features::FrameView {
+            map_points: None,
+            ..v
+        };
+        let mut buf = vec![0.0; ViewLayout::len(&no_map)];
+        ViewLayout::write(&no_map, &mut h, &mut buf);
+        assert_eq!(ViewLayout::read(&h, &buf), Some(no_map));
+        assert_eq!(ViewLayout::read(&h, &buf[1..]), None);
     }
 
     #[test]

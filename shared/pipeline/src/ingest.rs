@@ -86,6 +86,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
         .max_loaned_samples(2)
         .create()
         .map_err(|e| MessageError::ipc("frames publisher", e))?;
+    let views = crate::views::ImageViews::open(&ctx, first.width * first.height)?;
     let poses = ctx.header_subscriber::<PoseMsg>(Topic::Poses)?;
     let backend = ctx.plain_subscriber::<BackendState>(Topic::Backend)?;
 
@@ -163,7 +164,8 @@ pub fn run(args: &StageArgs) -> Result<()> {
             }
         }
         let t_in = now_ns();
-        let h = publish_frame(&frames, &seq, next, index, t, (first.width, first.height))?;
+        let size = (first.width, first.height);
+        let h = publish_frame((&frames, &views), &seq, next, index, t, size)?;
         ctx.frame_done(&h, t_in, in_flight as usize);
         next += 1;
     }
@@ -181,9 +183,10 @@ fn publisher_keepalive(p: &FramePublisher) {
     let _ = p.update_connections();
 }
 
-/// Loads frame `index` and publishes it as `seq` (or reports it unreadable).
+/// Loads frame `index` and publishes it as `seq` (or reports it unreadable), and its image to
+/// viewers.
 fn publish_frame(
-    p: &FramePublisher,
+    (p, views): (&FramePublisher, &crate::views::ImageViews),
     seq: &Sequence,
     next: u64,
     index: usize,
@@ -218,6 +221,7 @@ fn publish_frame(
     h.height = image.height as u32;
     stamp(&mut h, StageKind::Ingest);
     send_slice(p, h, &image.data)?;
+    views.publish(h, &image.data);
     Ok(h)
 }
 

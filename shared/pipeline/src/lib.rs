@@ -20,3 +20,5 @@ pub mod matching;
 pub mod monitor;
 pub mod supervisor;
 pub mod tracking;
+pub mod viewer;
+pub mod views;

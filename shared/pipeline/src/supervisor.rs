@@ -271,6 +271,11 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
         services.header_topic::<MatchRequest>(&node, Topic::MatchRequests, true)?,
         services.plain_topic::<BackendState>(&node, Topic::Backend, true)?,
     );
+    // the diagnostic views (lossy; stages publish on them only while someone listens)
+    let _views = (
+        services.view_topic(&node, true)?,
+        services.slice_topic::<u8>(&node, Topic::ViewImages, true)?,
+    );
     let progress_service = services.plain_topic::<Progress>(&node, Topic::Progress, true)?;
     let progress = progress_service
         .subscriber_builder()

@@ -10,12 +10,12 @@ use std::time::Duration;
 use supermvo_config::PipelineConfig;
 use supermvo_dataset::Sequence;
 use supermvo_geometry::{Mat3, Pose, Vec3};
-use supermvo_inference::{Features, Matches};
+use supermvo_inference::{Features, FrameView, Matches};
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
 use supermvo_messages::iceoryx2::prelude::*;
 use supermvo_messages::{
     now_ns, BackendState, FrameHeader, MatchEntry, MatchRequest, MessageError, PoseMsg, StageKind,
-    Status, Topic,
+    Status, Topic, ViewHeader,
 };
 use supermvo_vo::loops::{LoopCloser, LoopConfig};
 use supermvo_vo::pipeline::close_loops;
@@ -108,6 +108,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
         .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
         .create()
         .map_err(|e| MessageError::ipc("poses publisher", e))?;
+    let views = crate::views::FrameViews::open(&ctx, cfg.top_k)?;
     let requests = ctx
         .services
         .header_topic::<MatchRequest>(&ctx.node, Topic::MatchRequests, false)?
@@ -163,12 +164,17 @@ pub fn run(args: &StageArgs) -> Result<()> {
                     .and_then(|f| tracker.track_without_matches(frame_meta(&fh), f))
                 {
                     // tracked by projection: the matching stage sends nothing for it
+                    let view = f
+                        .as_ref()
+                        .filter(|_| views.listening())
+                        .map(|f| FrameView::new(f, None));
                     feats.pop();
                     pairs.reset_to(fh.seq + 1);
-                    if let Some(l) = loops.as_mut() {
-                        close_loops(l, &mut tracker, &out);
-                    }
+                    let closed = loops
+                        .as_mut()
+                        .and_then(|l| close_loops(l, &mut tracker, &out).map(|_| loop_edge(l)));
                     let h = publish(&publisher, fh.forward(Status::Ok), pose_msg(&out))?;
+                    publish_view(&views, &tracker, (h, &out), view, closed);
                     ctx.frame_done(&h, t_in, feats.len());
                     continue;
                 }
@@ -213,13 +219,18 @@ pub fn run(args: &StageArgs) -> Result<()> {
                                 scores: m.iter().map(|e| e.score).collect(),
                             }
                         });
+                    let view = views.listening().then(|| {
+                        FrameView::new(&f, tracker.reference().map(|r| r.1).zip(m.as_ref()))
+                    });
                     let out = tracker.step(frame_meta(&fh), f, m.as_ref());
-                    if let Some(l) = loops.as_mut() {
-                        close_loops(l, &mut tracker, &out);
-                    }
+                    let closed = loops
+                        .as_mut()
+                        .and_then(|l| close_loops(l, &mut tracker, &out).map(|_| loop_edge(l)));
                     let mut h = fh.forward(Status::Ok);
                     h.t_ns[StageKind::Matching as usize] = mh.t_ns[StageKind::Matching as usize];
-                    publish(&publisher, h, pose_msg(&out))?
+                    let h = publish(&publisher, h, pose_msg(&out))?;
+                    publish_view(&views, &tracker, (h, &out), view, closed);
+                    h
                 }
                 (st_f, st_m, _) => {
                     let st = if st_f != Status::Ok { st_f } else { st_m };
@@ -231,7 +242,19 @@ pub fn run(args: &StageArgs) -> Result<()> {
                     }
                     let mut h = fh.forward(st);
                     h.t_ns[StageKind::Matching as usize] = mh.t_ns[StageKind::Matching as usize];
-                    publish(&publisher, h, no_frame(&tracker))?
+                    let msg = no_frame(&tracker);
+                    let h = publish(&publisher, h, msg)?;
+                    if views.listening() {
+                        let v = ViewHeader {
+                            frame: h,
+                            pose: msg,
+                            loop_query: -1,
+                            loop_match: -1,
+                            ..Default::default()
+                        };
+                        views.publish(v, &FrameView::default());
+                    }
+                    h
                 }
             };
             ctx.frame_done(&h, t_in, feats.len());
@@ -242,6 +265,39 @@ pub fn run(args: &StageArgs) -> Result<()> {
         ctx.heartbeat_if_idle();
     }
     Ok(())
+}
+
+/// The frames of the loop just closed: `(query, match)`.
+fn loop_edge(l: &LoopCloser) -> (i64, i64) {
+    l.loops()
+        .last()
+        .map_or((-1, -1), |e| (e.query_frame as i64, e.match_frame as i64))
+}
+
+/// Publishes a tracked frame's view (built when a viewer listened), with the map's points on
+/// keyframes and the loop it closed.
+fn publish_view(
+    views: &crate::views::FrameViews,
+    tracker: &Tracker,
+    (h, out): (FrameHeader, &FrameOutput),
+    view: Option<FrameView>,
+    closed: Option<(i64, i64)>,
+) {
+    let Some(mut view) = view else {
+        return;
+    };
+    if out.keyframe {
+        view.map_points = Some(tracker.map_points());
+    }
+    let (loop_query, loop_match) = closed.unwrap_or((-1, -1));
+    let header = ViewHeader {
+        frame: h,
+        pose: pose_msg(out),
+        loop_query,
+        loop_match,
+        ..Default::default()
+    };
+    views.publish(header, &view);
 }
 
 /// Loop-corrected poses by sequence number, written by the tracking stage at the end of the

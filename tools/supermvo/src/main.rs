@@ -79,6 +79,10 @@ enum Command {
     Monitor(daemon_cmd::MonitorArgs),
     /// List the nodes and services of running pipelines.
     Inspect(daemon_cmd::InspectArgs),
+    /// Record a running pipeline as MCAP (Foxglove schemas), read only, until its end.
+    Record(record_cmd::RecordArgs),
+    /// Serve a running pipeline live to Foxglove over its WebSocket protocol.
+    View(record_cmd::ViewArgs),
     /// Render a synthetic driving sequence with exact ground truth (KITTI layout).
     Synth(synth_cmd::SynthArgs),
     /// Inspect a trajectory file and convert it between KITTI and TUM (as evo_traj does).
@@ -104,6 +108,8 @@ fn main() -> ExitCode {
         Command::Graph(args) => graph_cmd::run(&args),
         Command::Monitor(args) => daemon_cmd::monitor(&args),
         Command::Inspect(args) => daemon_cmd::inspect_cmd(&args),
+        Command::Record(args) => record_cmd::record(&args),
+        Command::View(args) => record_cmd::view(&args),
         Command::Synth(args) => synth_cmd::run(&args),
         Command::Traj(args) => traj_cmd::run(&args),
     };

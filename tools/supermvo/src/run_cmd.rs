@@ -481,6 +481,14 @@ fn run_multiprocess(
         matching::matcher(&cfg.pipeline)
             .context("checking the front end before starting the daemon")?,
     );
+    let recording = match &args.recording.record {
+        Some(path) => Some(crate::record_cmd::DaemonRecording::start(
+            &cfg.pipeline.name,
+            path,
+            args.recording.options(),
+        )?),
+        None => None,
+    };
     let metrics = supermvo_pipeline::supervisor::run(&SupervisorOptions {
         config: cfg.clone(),
         seq: seq.dir.clone(),
@@ -488,6 +496,9 @@ fn run_multiprocess(
         bin_dir: default_bin_dir(),
         quiet: args.quiet,
     })?;
+    if let Some(r) = recording {
+        r.finish()?;
+    }
     let records = with_corrections(&args.out, &read_records(&args.out.join("frames.csv"))?);
     let est: Vec<_> = records
         .iter()
