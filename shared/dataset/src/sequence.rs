@@ -7,6 +7,8 @@
 //! TUM RGB-D  DIR/rgb.txt ("timestamp filename" lines, '#' comments), DIR/rgb/*.png
 //! images     DIR/*.png|jpg in natural order, with DIR/times.txt (seconds, one a line) or
 //!            10 Hz assumed
+//! video      FILE.mp4|mkv|avi|mov|webm|m4v|mpg, decoded by ffmpeg, its presentation times;
+//!            the camera in --camera, FILE's stem + .yaml, or camera.yaml beside it
 //! ```
 //!
 //! A camera file (`--camera`, or `camera.yaml` in DIR; EuRoC's `sensor.yaml` by default)
@@ -17,6 +19,7 @@
 use crate::camera::{Camera, Undistorter};
 use crate::kitti::{image_files, read_times};
 use crate::trajectory::{read_trajectory, Trajectory, TrajectoryFormat};
+use crate::video::{is_video, Video};
 use crate::{Calibration, DatasetError, GrayImage};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -32,29 +35,36 @@ pub enum Layout {
     Tum,
     /// A folder of images.
     Images,
+    /// A video file.
+    Video,
 }
 
 /// One sequence of frames on disk (see the module docs).
 #[derive(Debug, Clone)]
 pub struct Sequence {
-    /// The sequence directory (`.../sequences/NN` for KITTI).
+    /// The sequence directory (`.../sequences/NN` for KITTI; the file, for a video).
     pub dir: PathBuf,
     /// Pinhole intrinsics of the frames as [`Sequence::load_frame`] returns them.
     pub calib: Calibration,
     /// Timestamp of each frame, seconds.
     pub times: Vec<f64>,
-    /// Image file of each frame, in order.
+    /// Image file of each frame, in order (none for a video: see [`Sequence::len`]).
     pub images: Vec<PathBuf>,
     /// The layout it was read from.
     pub layout: Layout,
     /// The remap of distorted frames, when the camera has distortion.
     undistort: Option<Arc<Undistorter>>,
+    /// The decoder of a video.
+    video: Option<Arc<Video>>,
 }
 
 impl Sequence {
     /// Opens `dir` in whichever layout it has (module docs), with the camera file `camera`
     /// when given (it replaces KITTI's `calib.txt` and EuRoC's `sensor.yaml`).
     pub fn open_with_camera(dir: &Path, camera: Option<&Path>) -> Result<Self, DatasetError> {
+        if is_video(dir) {
+            return Self::open_video(dir, camera);
+        }
         if !dir.is_dir() {
             return Err(DatasetError::invalid(dir, "sequence directory not found"));
         }
@@ -104,6 +114,47 @@ impl Sequence {
         Self::with_camera(dir, Layout::Images, times, images, &camera)
     }
 
+    /// A video file seen through `camera` (or the camera file beside it).
+    fn open_video(file: &Path, camera: Option<&Path>) -> Result<Self, DatasetError> {
+        let beside = [
+            file.with_extension("yaml"),
+            file.with_file_name("camera.yaml"),
+        ]
+        .into_iter()
+        .find(|p| p.is_file());
+        let path = camera.map(Path::to_path_buf).or(beside).ok_or_else(|| {
+            DatasetError::invalid(
+                file,
+                "a video needs a camera file: give --camera FILE.yaml (ORB-SLAM3 or EuRoC style) or put one beside it (same name with .yaml, or camera.yaml)",
+            )
+        })?;
+        let camera = Camera::read(&path)?;
+        let video = Video::open(file)?;
+        let (w, h) = camera.size.unwrap_or(video.size);
+        let undistort = (camera.distortion != crate::camera::Distortion::None)
+            .then(|| Undistorter::new(&camera, w, h).map(Arc::new))
+            .flatten();
+        Ok(Self {
+            dir: file.to_path_buf(),
+            calib: camera.calib,
+            times: video.stamps.clone(),
+            images: Vec::new(),
+            layout: Layout::Video,
+            undistort,
+            video: Some(Arc::new(video)),
+        })
+    }
+
+    /// Frames in the sequence.
+    pub fn len(&self) -> usize {
+        self.times.len()
+    }
+
+    /// Whether it has no frames.
+    pub fn is_empty(&self) -> bool {
+        self.times.is_empty()
+    }
+
     /// A sequence of `images` at `times` seen through `camera`.
     fn with_camera(
         dir: &Path,
@@ -134,11 +185,19 @@ impl Sequence {
             images,
             layout,
             undistort,
+            video: None,
         })
     }
 
     /// Frame `i`, remapped to the pinhole camera [`Sequence::calib`] when the lens distorts.
     pub fn load_frame(&self, i: usize) -> Result<GrayImage, DatasetError> {
+        if let Some(v) = &self.video {
+            let img = v.frame(i)?;
+            return match &self.undistort {
+                Some(u) => u.apply(&img, &self.dir),
+                None => Ok(img),
+            };
+        }
         let path = self
             .images
             .get(i)
@@ -193,14 +252,17 @@ impl Sequence {
             images,
             layout: Layout::Kitti,
             undistort: None,
+            video: None,
         })
     }
 
-    /// Sequence name (the directory name, e.g. `00`).
+    /// Sequence name (the directory name, e.g. `00`; a video's file stem).
     pub fn name(&self) -> String {
-        self.dir
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
+        let name = match self.layout {
+            Layout::Video => self.dir.file_stem(),
+            _ => self.dir.file_name(),
+        };
+        name.map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default()
     }
 

@@ -35,9 +35,9 @@ impl Replay {
     /// The replay of `seq` (`max_frames` 0: all) `loops` times.
     pub fn new(seq: &Sequence, max_frames: usize, loops: usize) -> Self {
         let n = if max_frames == 0 {
-            seq.images.len()
+            seq.len()
         } else {
-            max_frames.min(seq.images.len())
+            max_frames.min(seq.len())
         };
         Self {
             frames: n,

@@ -509,7 +509,7 @@ fn tracking(
         frontend: frontend.parse().map_err(anyhow::Error::msg)?,
         ..Default::default()
     };
-    let n = frames.min(seq.images.len());
+    let n = frames.min(seq.len());
     if n < 2 {
         bail!("{}: needs at least 2 frames", seq_dir.display());
     }

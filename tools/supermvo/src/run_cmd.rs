@@ -40,7 +40,8 @@ pub enum Mode {
 /// Arguments of `supermvo run`.
 #[derive(Debug, Args)]
 pub struct RunArgs {
-    /// Sequence directory (`.../sequences/NN` with calib.txt, times.txt, image_0/).
+    /// Sequence: a KITTI (`.../sequences/NN`), EuRoC or TUM folder, a folder of images, or
+    /// a video file (decoded by ffmpeg; docs/usage.md).
     seq_dir: PathBuf,
     /// Ground-truth poses (KITTI format) [default: ../../poses/NN.txt if present].
     #[arg(long)]
@@ -200,8 +201,8 @@ pub fn run(args: &RunArgs) -> Result<()> {
     let seq = Sequence::open_with_camera(&args.seq_dir, cfg.pipeline.camera.as_deref())?;
     check_calibration(&seq)?;
     let n = match cfg.pipeline.max_frames {
-        0 => seq.images.len(),
-        m => m.min(seq.images.len()),
+        0 => seq.len(),
+        m => m.min(seq.len()),
     };
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;

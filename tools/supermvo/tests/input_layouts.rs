@@ -184,3 +184,116 @@ fn a_jpeg_folder_tracks() {
     assert_eq!(first.parse::<f64>().unwrap(), 0.0);
     assert!(traj.lines().count() >= FRAMES * 9 / 10, "{traj}");
 }
+
+/// `ffmpeg -framerate 10 -i DIR/%06d.png ARGS... OUT` on the excerpt's frames.
+fn encode(frames: &Path, out: &Path, args: &[&str]) {
+    let r = std::process::Command::new("ffmpeg")
+        .args([
+            "-hide_banner",
+            "-loglevel",
+            "error",
+            "-y",
+            "-framerate",
+            "10",
+            "-i",
+        ])
+        .arg(frames.join("image_0/%06d.png"))
+        .args(args)
+        .arg(out)
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+}
+
+/// A video of the same frames, decoded by ffmpeg: losslessly encoded (FFV1, grey) it gives
+/// the KITTI run's poses bit for bit, at the video's presentation times; as H.264 (lossy,
+/// what cameras write) it tracks. The camera file lies beside the video, named after it.
+#[test]
+fn a_video_gives_the_kitti_runs_trajectory() {
+    let Some(src) = common::shared_data("kitti/sequences/07") else {
+        return;
+    };
+    if !common::ffmpeg_ready() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path();
+    let (kitti, _, _) = kitti_excerpt(&src, root);
+    let reference = trajectory(&kitti, &root.join("out/kitti"), &[]);
+    let poses = |t: &str| -> Vec<String> {
+        t.lines()
+            .map(|l| l.split_whitespace().skip(1).collect::<Vec<_>>().join(" "))
+            .collect()
+    };
+    let stamps = |t: &str| -> Vec<f64> {
+        t.lines()
+            .map(|l| l.split_whitespace().next().unwrap().parse().unwrap())
+            .collect()
+    };
+
+    let lossless = root.join("clip.mkv");
+    encode(&kitti, &lossless, &["-c:v", "ffv1", "-pix_fmt", "gray"]);
+    std::fs::write(root.join("clip.yaml"), camera_yaml(&src)).unwrap();
+    let video = trajectory(&lossless, &root.join("out/ffv1"), &[]);
+    assert_eq!(poses(&video), poses(&reference));
+    // presentation times of a 10 frames/s video
+    let kitti_frames: Vec<usize> = stamps(&reference)
+        .iter()
+        .map(|t| {
+            let all: Vec<f64> = std::fs::read_to_string(kitti.join("times.txt"))
+                .unwrap()
+                .lines()
+                .map(|l| l.trim().parse().unwrap())
+                .collect();
+            all.iter().position(|x| (x - t).abs() < 1e-9).unwrap()
+        })
+        .collect();
+    for (t, i) in stamps(&video).iter().zip(kitti_frames) {
+        assert!((t - i as f64 * 0.1).abs() < 1e-6, "frame {i} at {t}");
+    }
+
+    let h264 = root.join("clip.mp4");
+    encode(
+        &kitti,
+        &h264,
+        &["-c:v", "libx264", "-crf", "18", "-pix_fmt", "yuv420p"],
+    );
+    let cam = root.join("kitti07.yaml");
+    std::fs::write(&cam, camera_yaml(&src)).unwrap();
+    let lossy = trajectory(
+        &h264,
+        &root.join("out/h264"),
+        &["--camera", cam.to_str().unwrap()],
+    );
+    assert!(lossy.lines().count() >= FRAMES * 9 / 10, "{lossy}");
+
+    // a video without a camera file is refused with what to do; a file that is not a video
+    // is one clear error naming it
+    std::fs::rename(&h264, root.join("other.mp4")).unwrap();
+    let other = root.join("other.mp4");
+    common::expect_error(
+        &[
+            "run",
+            other.to_str().unwrap(),
+            "--mode",
+            "inprocess",
+            "--frontend",
+            "orb",
+        ],
+        &["other.mp4", "needs a camera file", "--camera"],
+    );
+    let broken = root.join("broken.mp4");
+    std::fs::write(&broken, b"not a video").unwrap();
+    std::fs::write(root.join("broken.yaml"), camera_yaml(&src)).unwrap();
+    common::expect_error(
+        &[
+            "run",
+            broken.to_str().unwrap(),
+            "--mode",
+            "inprocess",
+            "--frontend",
+            "orb",
+        ],
+        &["broken.mp4", "not a readable video"],
+    );
+}

@@ -200,3 +200,20 @@ pub fn python_tools() -> Option<PathBuf> {
     );
     None
 }
+
+/// Whether the `ffmpeg` program runs (video input); when not, prints why (the test then
+/// skips), unless `SUPERMVO_REQUIRE_SHARED=1`, in which case the test fails.
+pub fn ffmpeg_ready() -> bool {
+    let ok = Command::new("ffmpeg")
+        .arg("-version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !ok {
+        assert!(
+            std::env::var("SUPERMVO_REQUIRE_SHARED").as_deref() != Ok("1"),
+            "ffmpeg is missing: run 'bash tools/setup.sh' (it installs Debian's ffmpeg)"
+        );
+        eprintln!("SKIP: ffmpeg not installed (bash tools/setup.sh installs it)");
+    }
+    ok
+}
