@@ -23,6 +23,9 @@ pub enum Distortion {
     RadTan([f64; 5]),
     /// Equidistant (fisheye): `k1 k2 k3 k4` on the angle from the axis.
     Equidistant([f64; 4]),
+    /// Field of view (Devernay and Faugeras; TUM monoVO's cameras): `omega`, radians; a
+    /// point at radius `r` appears at `atan(2 r tan(omega / 2)) / omega`.
+    Fov(f64),
 }
 
 impl Distortion {
@@ -49,6 +52,14 @@ impl Distortion {
                 let thd = th * (1.0 + th2 * (k1 + th2 * (k2 + th2 * (k3 + th2 * k4))));
                 (x * thd / r, y * thd / r)
             }
+            Self::Fov(w) => {
+                let r = (x * x + y * y).sqrt();
+                if r < 1e-12 || w == 0.0 {
+                    return (x, y);
+                }
+                let f = (r * 2.0 * (w / 2.0).tan()).atan() / (w * r);
+                (x * f, y * f)
+            }
         }
     }
 
@@ -57,6 +68,15 @@ impl Distortion {
     pub fn undistort(&self, xd: f64, yd: f64) -> (f64, f64) {
         if *self == Self::None {
             return (xd, yd);
+        }
+        if let Self::Fov(w) = *self {
+            // closed form: r = tan(rd omega) / (2 tan(omega / 2))
+            let rd = (xd * xd + yd * yd).sqrt();
+            if rd < 1e-12 || w == 0.0 {
+                return (xd, yd);
+            }
+            let f = (rd * w).tan() / (2.0 * (w / 2.0).tan() * rd);
+            return (xd * f, yd * f);
         }
         let (mut x, mut y) = (xd, yd);
         for _ in 0..30 {
@@ -221,25 +241,32 @@ fn orbslam_camera(
             v.trim_matches('"').to_string()
         });
     let c = |k: &str| get(k).map(|v| v.unwrap_or(0.0));
-    let distortion = match kind.as_str() {
-        "KannalaBrandt8" | "fisheye" => {
-            Distortion::Equidistant([c("k1")?, c("k2")?, c("k3")?, c("k4")?])
-        }
-        "PinHole" | "Pinhole" | "pinhole" => {
-            let d = [c("k1")?, c("k2")?, c("p1")?, c("p2")?, c("k3")?];
-            if d.iter().all(|v| *v == 0.0) {
-                Distortion::None
-            } else {
-                Distortion::RadTan(d)
+    let distortion =
+        match kind.as_str() {
+            "KannalaBrandt8" | "fisheye" => {
+                Distortion::Equidistant([c("k1")?, c("k2")?, c("k3")?, c("k4")?])
             }
-        }
-        other => {
-            return Err(DatasetError::invalid(
+            // not an ORB-SLAM3 type: TUM monoVO's model, as `supermvo synth --distortion fov`
+            // writes it
+            "FOV" => match c("omega")? {
+                0.0 => Distortion::None,
+                w => Distortion::Fov(w),
+            },
+            "PinHole" | "Pinhole" | "pinhole" => {
+                let d = [c("k1")?, c("k2")?, c("p1")?, c("p2")?, c("k3")?];
+                if d.iter().all(|v| *v == 0.0) {
+                    Distortion::None
+                } else {
+                    Distortion::RadTan(d)
+                }
+            }
+            other => return Err(DatasetError::invalid(
                 path,
-                format!("Camera.type '{other}' is not supported; use PinHole or KannalaBrandt8"),
-            ))
-        }
-    };
+                format!(
+                    "Camera.type '{other}' is not supported; use PinHole, KannalaBrandt8 or FOV"
+                ),
+            )),
+        };
     let size = match (number("Camera.width")?, number("Camera.height")?) {
         (Some(w), Some(h)) if w > 0.0 && h > 0.0 => Some((w as usize, h as usize)),
         _ => None,

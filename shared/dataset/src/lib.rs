@@ -15,6 +15,7 @@ mod image;
 mod kitti;
 mod sequence;
 mod trajectory;
+mod tum_mono;
 mod video;
 
 pub use camera::{Camera, Distortion, Remap, Undistorter};

@@ -5,6 +5,7 @@
 //! EuRoC      DIR/mav0/cam0/data.csv ("#timestamp [ns],filename"), .../data/*.png, .../sensor.yaml
 //!            (DIR may also be mav0/ or cam0/ itself)
 //! TUM RGB-D  DIR/rgb.txt ("timestamp filename" lines, '#' comments), DIR/rgb/*.png
+//! TUM monoVO DIR/images/*.jpg|png, DIR/times.txt ("id time exposure"), DIR/camera.txt (FOV)
 //! images     DIR/*.png|jpg in natural order, with DIR/times.txt (seconds, one a line) or
 //!            10 Hz assumed
 //! video      FILE.mp4|mkv|avi|mov|webm|m4v|mpg, decoded by ffmpeg, its presentation times;
@@ -33,6 +34,8 @@ pub enum Layout {
     Euroc,
     /// TUM RGB-D (`rgb.txt`).
     Tum,
+    /// TUM monoVO (`camera.txt`, `images/`).
+    TumMono,
     /// A folder of images.
     Images,
     /// A video file.
@@ -78,6 +81,31 @@ impl Sequence {
             let (times, images) = read_tum_list(&dir.join("rgb.txt"), dir)?;
             let camera = Camera::read(&camera_file(dir, camera, "TUM RGB-D")?)?;
             return Self::with_camera(dir, Layout::Tum, times, images, &camera);
+        }
+        if crate::tum_mono::is_tum_mono(dir) {
+            let images = image_files(&dir.join("images"))?;
+            let times = crate::tum_mono::read_times(&dir.join("times.txt"))?;
+            if times.len() != images.len() {
+                return Err(DatasetError::invalid(
+                    dir.join("times.txt"),
+                    format!(
+                        "{} timestamps but {} images in images/",
+                        times.len(),
+                        images.len()
+                    ),
+                ));
+            }
+            let first = images
+                .first()
+                .ok_or_else(|| DatasetError::invalid(dir, "no frames in images/"))?;
+            let camera = match camera {
+                Some(p) => Camera::read(p)?,
+                None => {
+                    let img = GrayImage::load(first)?;
+                    crate::tum_mono::read_camera(&dir.join("camera.txt"), (img.width, img.height))?
+                }
+            };
+            return Self::with_camera(dir, Layout::TumMono, times, images, &camera);
         }
         let kitti = dir.join("image_0").is_dir() || dir.join("image_2").is_dir();
         if kitti {

@@ -251,6 +251,12 @@ pub fn process_cpu_ns() -> u64 {
     ns(u.user_time()) + ns(u.system_time())
 }
 
+/// Peak resident memory of this process so far, KiB (`getrusage`); 0 where unavailable.
+pub fn peak_rss_kb() -> u64 {
+    use nix::sys::resource::{getrusage, UsageWho};
+    getrusage(UsageWho::RUSAGE_SELF).map_or(0, |u| u.max_rss().max(0) as u64)
+}
+
 /// Whether log lines on stderr get ANSI colours: only on a terminal (a stage's stderr is
 /// its log file; a redirected run's is a file too), and never with `NO_COLOR` set
 /// (no-color.org).

@@ -419,6 +419,9 @@ impl Sequence {
             supermvo_dataset::Distortion::Equidistant([k1, k2, k3, k4]) => Some(format!(
                 "{head}Camera.type: \"KannalaBrandt8\"\nCamera.k1: {k1}\nCamera.k2: {k2}\nCamera.k3: {k3}\nCamera.k4: {k4}\n"
             )),
+            supermvo_dataset::Distortion::Fov(w) => {
+                Some(format!("{head}Camera.type: \"FOV\"\nCamera.omega: {w}\n"))
+            }
         }
     }
 

@@ -461,6 +461,7 @@ fn run_inprocess(
         "sequence": seq.dir, "frames": n, "estimated": traj.poses.len(), "lost": lost,
         "unposed_frames": unposed,
         "timing_ms": {"frame_median": vo.median_ms(), "per_frame": vo.durations_ms()},
+        "peak_rss_kb": supermvo_pipeline::common::peak_rss_kb(),
         "loops": loops,
         "frames_detail": outputs,
     });

@@ -33,8 +33,9 @@ pub struct SynthArgs {
     /// Render again even if an identical sequence is already there.
     #[arg(long)]
     force: bool,
-    /// Render through a lens: radtan (radial-tangential, k1 -0.25 k2 0.06 p1 5e-4 p2 -3e-4)
-    /// or fisheye (equidistant, k1..k4 0.02 -0.01 0.005 -0.001); the lens is written to
+    /// Render through a lens: radtan (radial-tangential, k1 -0.25 k2 0.06 p1 5e-4 p2 -3e-4),
+    /// fisheye (equidistant, k1..k4 0.02 -0.01 0.005 -0.001) or fov (field of view, omega
+    /// 0.9, TUM monoVO's model); the lens is written to
     /// camera.yaml beside calib.txt, which `supermvo run` then uses.
     #[arg(long, value_enum, default_value = "none")]
     distortion: LensArg,
@@ -53,6 +54,8 @@ pub enum LensArg {
     Radtan,
     /// Equidistant (fisheye).
     Fisheye,
+    /// Field of view (TUM monoVO's model).
+    Fov,
 }
 
 impl LensArg {
@@ -63,6 +66,7 @@ impl LensArg {
             Self::Fisheye => {
                 supermvo_dataset::Distortion::Equidistant([0.02, -0.01, 0.005, -0.001])
             }
+            Self::Fov => supermvo_dataset::Distortion::Fov(0.9),
         }
     }
 }

@@ -141,6 +141,39 @@ fn every_input_layout_gives_the_kitti_runs_trajectory() {
     );
     assert_eq!(poses(&tum_traj), poses(&reference));
 
+    // TUM monoVO: images/, times.txt ("id time exposure"), camera.txt with the intrinsics
+    // relative to the image size (DSO's convention, half a pixel off) and omega 0 (pinhole)
+    let mono = root.join("monovo");
+    std::fs::create_dir_all(mono.join("images")).unwrap();
+    let mut list = String::new();
+    for (i, (img, t)) in images.iter().zip(&times).enumerate() {
+        std::os::unix::fs::symlink(img, mono.join(format!("images/{i:05}.png"))).unwrap();
+        list.push_str(&format!("{i:05} {} 10.0\n", t.trim()));
+    }
+    std::fs::write(mono.join("times.txt"), list).unwrap();
+    let (wf, hf) = (w as f64, h as f64);
+    std::fs::write(
+        mono.join("camera.txt"),
+        format!(
+            "FOV {} {} {} {} 0\n{w} {h}\ncrop\n{w} {h}\n",
+            calib.fx / wf,
+            calib.fy / hf,
+            (calib.cx + 0.5) / wf,
+            (calib.cy + 0.5) / hf
+        ),
+    )
+    .unwrap();
+    let mono_traj = trajectory(&mono, &root.join("out/monovo"), &[]);
+    // the intrinsics went through a division and back: equal poses to rounding
+    let values =
+        |t: &str| -> Vec<f64> { t.split_whitespace().map(|v| v.parse().unwrap()).collect() };
+    let (a, b) = (values(&mono_traj), values(&reference));
+    assert_eq!(a.len(), b.len(), "{mono_traj}");
+    assert!(
+        a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-6),
+        "{mono_traj}"
+    );
+
     // without a camera file, a TUM folder is refused with what to do
     std::fs::remove_file(&cam).unwrap();
     common::expect_error(

@@ -1,5 +1,5 @@
 //! Lens distortion with exact ground truth: the synthetic `dynamic` preset rendered through a
-//! radial-tangential and through an equidistant (fisheye) lens (`supermvo synth
+//! radial-tangential, an equidistant (fisheye) and a field-of-view lens (`supermvo synth
 //! --distortion`, which writes the lens to `camera.yaml`), tracked with the lens model (the
 //! frames remapped to a pinhole camera as they load) and, for comparison, as if the camera
 //! were a pinhole (`--camera` with the intrinsics only). With the model the run must track
@@ -58,7 +58,7 @@ fn distorted_renderings_track_with_the_lens_model_and_not_without() {
         ),
     )
     .unwrap();
-    for lens in ["radtan", "fisheye"] {
+    for lens in ["radtan", "fisheye", "fov"] {
         let seq = render(root, lens);
         assert!(seq.join("camera.yaml").is_file());
         let (p, a) = run(&seq, &root.join(format!("out/{lens}")), &[]);
