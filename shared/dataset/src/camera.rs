@@ -241,32 +241,33 @@ fn orbslam_camera(
             v.trim_matches('"').to_string()
         });
     let c = |k: &str| get(k).map(|v| v.unwrap_or(0.0));
-    let distortion =
-        match kind.as_str() {
-            "KannalaBrandt8" | "fisheye" => {
-                Distortion::Equidistant([c("k1")?, c("k2")?, c("k3")?, c("k4")?])
+    let distortion = match kind.as_str() {
+        "KannalaBrandt8" | "fisheye" => {
+            Distortion::Equidistant([c("k1")?, c("k2")?, c("k3")?, c("k4")?])
+        }
+        // not an ORB-SLAM3 type: TUM monoVO's model, as `supermvo synth --distortion fov`
+        // writes it
+        "FOV" => match c("omega")? {
+            0.0 => Distortion::None,
+            w => Distortion::Fov(w),
+        },
+        "PinHole" | "Pinhole" | "pinhole" => {
+            let d = [c("k1")?, c("k2")?, c("p1")?, c("p2")?, c("k3")?];
+            if d.iter().all(|v| *v == 0.0) {
+                Distortion::None
+            } else {
+                Distortion::RadTan(d)
             }
-            // not an ORB-SLAM3 type: TUM monoVO's model, as `supermvo synth --distortion fov`
-            // writes it
-            "FOV" => match c("omega")? {
-                0.0 => Distortion::None,
-                w => Distortion::Fov(w),
-            },
-            "PinHole" | "Pinhole" | "pinhole" => {
-                let d = [c("k1")?, c("k2")?, c("p1")?, c("p2")?, c("k3")?];
-                if d.iter().all(|v| *v == 0.0) {
-                    Distortion::None
-                } else {
-                    Distortion::RadTan(d)
-                }
-            }
-            other => return Err(DatasetError::invalid(
+        }
+        other => {
+            return Err(DatasetError::invalid(
                 path,
                 format!(
                     "Camera.type '{other}' is not supported; use PinHole, KannalaBrandt8 or FOV"
                 ),
-            )),
-        };
+            ))
+        }
+    };
     let size = match (number("Camera.width")?, number("Camera.height")?) {
         (Some(w), Some(h)) if w > 0.0 && h > 0.0 => Some((w as usize, h as usize)),
         _ => None,

@@ -34,13 +34,15 @@ pub fn read_camera(path: &Path, size: (usize, usize)) -> Result<Camera, DatasetE
     let omega = match (model.as_deref(), v.len()) {
         (None | Some("FOV"), 5) => v[4],
         (Some("Pinhole"), 4 | 5) | (None, 4) => 0.0,
-        _ => return Err(DatasetError::parse(
-            path,
-            1,
-            format!(
+        _ => {
+            return Err(DatasetError::parse(
+                path,
+                1,
+                format!(
                 "'{first}': expected [FOV] fx fy cx cy omega (other models of DSO's are not read)"
             ),
-        )),
+            ))
+        }
     };
     let (w, h) = (size.0 as f64, size.1 as f64);
     let calib = if v[2] < 1.0 && v[3] < 1.0 {
