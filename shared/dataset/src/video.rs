@@ -1,9 +1,11 @@
 //! Frames of a video file, decoded by the `ffmpeg` program (Debian's `ffmpeg` package;
-//! `tools/setup.sh` installs it; `SUPERMVO_FFMPEG` names another binary). Opening a video runs
-//! one pass of ffmpeg's `showinfo` filter for the frame count, size and each frame's
-//! presentation time; frames are then decoded in order, as grey (the luma plane), by one
-//! ffmpeg process streaming raw frames through a pipe. Asking for an earlier frame starts it
-//! again. Every frame is kept (`-fps_mode passthrough`: none duplicated or dropped to a rate).
+//! `tools/setup.sh` installs it; `SUPERMVO_FFMPEG` names another binary). Opening a video lists
+//! its packets without decoding them (ffmpeg's `framecrc` muxer on a stream copy: the frame
+//! size, the time base and each frame's presentation time, sorted into presentation order), so
+//! every process that opens it pays a file read, not a decode; frames are then decoded in
+//! order, as grey (the luma plane), by one ffmpeg process streaming raw frames through a pipe.
+//! Asking for an earlier frame starts it again. Every frame is kept (`-fps_mode passthrough`:
+//! none duplicated or dropped to a rate).
 
 use crate::{DatasetError, GrayImage};
 use std::io::Read;
@@ -44,7 +46,7 @@ fn spawn_with(
     Command::new(binary)
         .args(["-hide_banner", "-nostdin", "-i"])
         .arg(path)
-        .args(["-map", "0:v:0", "-fps_mode", "passthrough"])
+        .args(["-map", "0:v:0"])
         .args(args)
         .stdin(Stdio::null())
         .stdout(stdout)
@@ -91,15 +93,15 @@ impl Video {
     pub fn open(path: &Path) -> Result<Self, DatasetError> {
         let child = spawn(
             path,
-            &["-vf", "showinfo", "-f", "null", "-"],
-            Stdio::null(),
+            &["-c", "copy", "-f", "framecrc", "-"],
+            Stdio::piped(),
             Stdio::piped(),
         )?;
         let out = child
             .wait_with_output()
             .map_err(|e| DatasetError::invalid(path, format!("reading ffmpeg's output: {e}")))?;
         let log = String::from_utf8_lossy(&out.stderr);
-        let (size, stamps) = parse_showinfo(&log);
+        let (size, stamps) = parse_framecrc(&String::from_utf8_lossy(&out.stdout));
         if !out.status.success() || stamps.is_empty() {
             let why = log
                 .lines()
@@ -177,31 +179,36 @@ impl Video {
     }
 }
 
-/// Frame size and presentation times from ffmpeg's `showinfo` lines
-/// (`... n:   0 pts:      0 pts_time:0  ... s:1226x370 ...`).
-fn parse_showinfo(log: &str) -> (Option<(usize, usize)>, Vec<f64>) {
-    let mut size = None;
-    let mut stamps = Vec::new();
-    for line in log
-        .lines()
-        .filter(|l| l.contains("Parsed_showinfo") && l.contains(" n:"))
-    {
-        let field = |key: &str| {
-            line.split_whitespace()
-                .find_map(|w| w.strip_prefix(key))
-                .map(str::to_string)
-        };
-        let Some(t) = field("pts_time:").and_then(|v| v.parse::<f64>().ok()) else {
-            continue;
-        };
-        stamps.push(t);
-        if size.is_none() {
-            size = field("s:").and_then(|s| {
-                let (w, h) = s.split_once('x')?;
-                Some((w.parse().ok()?, h.parse().ok()?))
+/// Frame size and presentation times (sorted) from ffmpeg's `framecrc` listing of a stream
+/// copy: `#tb 0: NUM/DEN`, `#dimensions 0: WxH`, then a `stream, dts, pts, duration, size, crc`
+/// line per packet, in decoding order.
+fn parse_framecrc(listing: &str) -> (Option<(usize, usize)>, Vec<f64>) {
+    let (mut size, mut tb) = (None, None);
+    let mut pts = Vec::new();
+    for line in listing.lines() {
+        if let Some(v) = line.strip_prefix("#tb 0:") {
+            tb = v.trim().split_once('/').and_then(|(n, d)| {
+                Some((n.trim().parse::<f64>().ok()?, d.trim().parse::<f64>().ok()?))
             });
+        } else if let Some(v) = line.strip_prefix("#dimensions 0:") {
+            size = v
+                .trim()
+                .split_once('x')
+                .and_then(|(w, h)| Some((w.trim().parse().ok()?, h.trim().parse().ok()?)));
+        } else if !line.starts_with('#') {
+            if let Some(p) = line
+                .split(',')
+                .nth(2)
+                .and_then(|v| v.trim().parse::<i64>().ok())
+            {
+                pts.push(p);
+            }
         }
     }
+    pts.sort_unstable();
+    let stamps = tb.map_or_else(Vec::new, |(num, den)| {
+        pts.iter().map(|&p| p as f64 * num / den).collect()
+    });
     (size, stamps)
 }
 
@@ -210,13 +217,14 @@ mod tests {
     use super::*;
 
     #[test]
-    fn showinfo_lines_give_size_and_times() {
-        let log = "[Parsed_showinfo_0 @ 0x1] config in time_base: 1/10240, frame_rate: 10/1\n\
-            [Parsed_showinfo_0 @ 0x1] n:   0 pts:      0 pts_time:0       pos:       48 fmt:yuv420p sar:0/1 s:1226x370 i:P\n\
-            [Parsed_showinfo_0 @ 0x1] n:   1 pts:   1024 pts_time:0.1     pos:    99 fmt:yuv420p sar:0/1 s:1226x370 i:P\n";
-        let (size, stamps) = parse_showinfo(log);
+    fn a_packet_listing_gives_size_and_times_in_presentation_order() {
+        let listing = "#tb 0: 1/10240\n#media_type 0: video\n#dimensions 0: 1226x370\n\
+            0,      -2048,          0,     1024,    83024, 0x625c030a\n\
+            0,      -1024,       2048,     1024,    47993, 0x5c193f90, F=0x0\n\
+            0,          0,       1024,     1024,    20341, 0x22d885bd, F=0x0\n";
+        let (size, stamps) = parse_framecrc(listing);
         assert_eq!(size, Some((1226, 370)));
-        assert_eq!(stamps, vec![0.0, 0.1]);
+        assert_eq!(stamps, vec![0.0, 0.1, 0.2]);
     }
 
     #[test]
