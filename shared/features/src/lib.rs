@@ -81,19 +81,26 @@ pub struct FrameView {
 impl FrameView {
     /// The view of frame `cur` with `matches` to `reference`.
     pub fn new(cur: &Features, reference: Option<(&Features, &Matches)>) -> Self {
-        let flow = reference.map_or_else(Vec::new, |(r, m)| {
-            m.pairs
-                .iter()
-                .filter_map(|&(a, b)| {
-                    let (p, q) = (r.keypoints.get(a)?, cur.keypoints.get(b)?);
-                    Some([p[0], p[1], q[0], q[1]])
-                })
-                .collect()
-        });
-        Self {
+        let mut view = Self {
             keypoints: cur.keypoints.clone(),
-            flow,
+            flow: Vec::new(),
             map_points: None,
+        };
+        if let Some((r, m)) = reference {
+            view.set_flow(r, cur, m);
         }
+        view
+    }
+
+    /// The flow of `matches` from `reference` to `cur` (`cur`'s keypoints are this view's).
+    pub fn set_flow(&mut self, reference: &Features, cur: &Features, m: &Matches) {
+        self.flow = m
+            .pairs
+            .iter()
+            .filter_map(|&(a, b)| {
+                let (p, q) = (reference.keypoints.get(a)?, cur.keypoints.get(b)?);
+                Some([p[0], p[1], q[0], q[1]])
+            })
+            .collect();
     }
 }

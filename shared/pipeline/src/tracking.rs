@@ -173,8 +173,9 @@ pub fn run(args: &StageArgs) -> Result<()> {
                     let closed = loops
                         .as_mut()
                         .and_then(|l| close_loops(l, &mut tracker, &out).map(|_| loop_edge(l)));
-                    let h = publish(&publisher, fh.forward(Status::Ok), pose_msg(&out))?;
-                    publish_view(&views, &tracker, (h, &out), view, closed);
+                    let msg = pose_msg(&out);
+                    let h = publish(&publisher, fh.forward(Status::Ok), msg)?;
+                    publish_view(&views, &tracker, (h, msg), view, closed);
                     ctx.frame_done(&h, t_in, feats.len());
                     continue;
                 }
@@ -228,8 +229,9 @@ pub fn run(args: &StageArgs) -> Result<()> {
                         .and_then(|l| close_loops(l, &mut tracker, &out).map(|_| loop_edge(l)));
                     let mut h = fh.forward(Status::Ok);
                     h.t_ns[StageKind::Matching as usize] = mh.t_ns[StageKind::Matching as usize];
-                    let h = publish(&publisher, h, pose_msg(&out))?;
-                    publish_view(&views, &tracker, (h, &out), view, closed);
+                    let msg = pose_msg(&out);
+                    let h = publish(&publisher, h, msg)?;
+                    publish_view(&views, &tracker, (h, msg), view, closed);
                     h
                 }
                 (st_f, st_m, _) => {
@@ -244,16 +246,8 @@ pub fn run(args: &StageArgs) -> Result<()> {
                     h.t_ns[StageKind::Matching as usize] = mh.t_ns[StageKind::Matching as usize];
                     let msg = no_frame(&tracker);
                     let h = publish(&publisher, h, msg)?;
-                    if views.listening() {
-                        let v = ViewHeader {
-                            frame: h,
-                            pose: msg,
-                            loop_query: -1,
-                            loop_match: -1,
-                            ..Default::default()
-                        };
-                        views.publish(v, &FrameView::default());
-                    }
+                    let view = views.listening().then(FrameView::default);
+                    publish_view(&views, &tracker, (h, msg), view, None);
                     h
                 }
             };
@@ -279,20 +273,20 @@ fn loop_edge(l: &LoopCloser) -> (i64, i64) {
 fn publish_view(
     views: &crate::views::FrameViews,
     tracker: &Tracker,
-    (h, out): (FrameHeader, &FrameOutput),
+    (h, pose): (FrameHeader, PoseMsg),
     view: Option<FrameView>,
     closed: Option<(i64, i64)>,
 ) {
     let Some(mut view) = view else {
         return;
     };
-    if out.keyframe {
+    if pose.keyframe == 1 {
         view.map_points = Some(tracker.map_points());
     }
     let (loop_query, loop_match) = closed.unwrap_or((-1, -1));
     let header = ViewHeader {
         frame: h,
-        pose: pose_msg(out),
+        pose,
         loop_query,
         loop_match,
         ..Default::default()

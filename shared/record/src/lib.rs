@@ -149,6 +149,8 @@ pub struct Recorder {
     opts: RecordOptions,
     summary: RecordSummary,
     last_position: Option<[f64; 3]>,
+    /// Camera position of every posed frame, by frame index (for loop edges).
+    positions: std::collections::BTreeMap<u64, [f64; 3]>,
 }
 
 impl std::fmt::Debug for Recorder {
@@ -199,6 +201,7 @@ impl Recorder {
             opts,
             summary: RecordSummary::default(),
             last_position: None,
+            positions: std::collections::BTreeMap::new(),
         })
     }
 
@@ -251,6 +254,7 @@ impl Recorder {
             self.channels.trajectory.log_with_meta(&segment, at);
         }
         self.last_position = Some(position);
+        self.positions.insert(f.frame, position);
         self.summary.poses += 1;
     }
 
@@ -294,17 +298,15 @@ impl Recorder {
         }
     }
 
-    /// Records a closed loop between the camera positions of two keyframes.
-    pub fn loop_closure(
-        &mut self,
-        stamp: f64,
-        frames: (u64, u64),
-        positions: ([f64; 3], [f64; 3]),
-    ) {
+    /// Records a closed loop between two recorded frames `(query, match)`: a line between
+    /// their camera positions (when both were posed) and a log line.
+    pub fn loop_closure(&mut self, stamp: f64, frames: (u64, u64)) {
         let at = channels::at(stamp);
-        let id = format!("loop/{}-{}", frames.0, frames.1);
-        let edge = channels::segment(stamp, id, positions.0, positions.1, true);
-        self.channels.loops.log_with_meta(&edge, at);
+        if let (Some(a), Some(b)) = (self.positions.get(&frames.0), self.positions.get(&frames.1)) {
+            let id = format!("loop/{}-{}", frames.0, frames.1);
+            let edge = channels::segment(stamp, id, *a, *b, true);
+            self.channels.loops.log_with_meta(&edge, at);
+        }
         let text = format!(
             "loop closed: frame {} recognised frame {}",
             frames.0, frames.1
@@ -386,7 +388,7 @@ mod tests {
                 }),
             });
         }
-        rec.loop_closure(n as f64 * 0.1, (n - 1, 0), ([0.0; 3], [0.0, 0.0, 1.0]));
+        rec.loop_closure(n as f64 * 0.1, (n - 1, 0));
         rec.finish().unwrap()
     }
 

@@ -98,7 +98,7 @@ impl Stage for VoPipeline {
         let out = self.tracker.track_frame(meta, cur, |reference, cur| {
             let m = matcher.match_features(reference, cur)?;
             if let Some(v) = view.as_mut() {
-                *v = FrameView::new(cur, Some((reference, &m)));
+                v.set_flow(reference, cur, &m);
             }
             Ok(m)
         })?;

@@ -5,7 +5,6 @@
 
 use anyhow::{Context, Result};
 use clap::Args;
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use supermvo_dataset::GrayImage;
 use supermvo_record::{FrameRecord, FrameView, ImageRef, RecordOptions, Recorder, Timing};
@@ -51,7 +50,6 @@ pub fn positive_mib(s: &str) -> Result<f64, String> {
 pub struct InprocessRecording {
     recorder: Recorder,
     path: PathBuf,
-    positions: BTreeMap<usize, [f64; 3]>,
     loops_seen: usize,
 }
 
@@ -67,7 +65,6 @@ impl InprocessRecording {
         Ok(Self {
             recorder: Recorder::to_mcap(path, opts)?,
             path: path.to_path_buf(),
-            positions: BTreeMap::new(),
             loops_seen: 0,
         })
     }
@@ -105,15 +102,9 @@ impl InprocessRecording {
             stage_ms: vec![("frame".into(), frame_ms)],
             ..Timing::default()
         });
-        if let Some(p) = out.pose {
-            self.positions.insert(out.index, [p[3], p[7], p[11]]);
-        }
         for edge in loops.iter().skip(self.loops_seen) {
-            let (q, m) = (edge.query_frame, edge.match_frame);
-            if let (Some(a), Some(b)) = (self.positions.get(&q), self.positions.get(&m)) {
-                self.recorder
-                    .loop_closure(out.stamp, (q as u64, m as u64), (*a, *b));
-            }
+            let frames = (edge.query_frame as u64, edge.match_frame as u64);
+            self.recorder.loop_closure(out.stamp, frames);
         }
         self.loops_seen = self.loops_seen.max(loops.len());
     }
@@ -308,17 +299,23 @@ fn follow(
     stop: &AtomicBool,
     name: &str,
 ) -> Result<&'static str> {
-    let mut positions: BTreeMap<i64, [f64; 3]> = BTreeMap::new();
+    // records what a poll found; true at the end of the stream
+    let take = |rec: &mut Recorder, events: Vec<ViewEvent>| {
+        for e in events {
+            match e {
+                ViewEvent::End => return true,
+                ViewEvent::Frame(f) => record_viewed(rec, &f),
+            }
+        }
+        false
+    };
     let mut last_check = std::time::Instant::now();
     loop {
         let stopping = stop.load(Ordering::SeqCst);
         let events = viewer.poll()?;
         let idle = events.is_empty();
-        for e in events {
-            match e {
-                ViewEvent::End => return Ok("end of stream"),
-                ViewEvent::Frame(f) => record_viewed(rec, &f, &mut positions),
-            }
+        if take(rec, events) {
+            return Ok("end of stream");
         }
         if stopping {
             return Ok("stopped");
@@ -330,11 +327,8 @@ fn follow(
             last_check = std::time::Instant::now();
             if supermvo_pipeline::supervisor::live_nodes(name)?.is_empty() {
                 // one last look: the end may have come with the nodes' exit
-                for e in viewer.poll()? {
-                    match e {
-                        ViewEvent::End => return Ok("end of stream"),
-                        ViewEvent::Frame(f) => record_viewed(rec, &f, &mut positions),
-                    }
+                if take(rec, viewer.poll()?) {
+                    return Ok("end of stream");
                 }
                 tracing::warn!("pipeline '{name}' stopped without reaching its end");
                 return Ok("the pipeline stopped before its end");
@@ -344,11 +338,7 @@ fn follow(
 }
 
 /// One viewed frame into the recorder: frame, timing, and the loop it closed.
-fn record_viewed(
-    rec: &mut Recorder,
-    f: &supermvo_pipeline::viewer::ViewedFrame,
-    positions: &mut BTreeMap<i64, [f64; 3]>,
-) {
+fn record_viewed(rec: &mut Recorder, f: &supermvo_pipeline::viewer::ViewedFrame) {
     let (h, p) = (&f.header.frame, &f.header.pose);
     let state = match p.state {
         0 => "initializing",
@@ -386,11 +376,8 @@ fn record_viewed(
         dropped: f.dropped,
         lost: f.lost,
     });
-    if let Some(t) = pose {
-        positions.insert(h.frame as i64, [t[3], t[7], t[11]]);
-    }
     let (q, m) = (f.header.loop_query, f.header.loop_match);
-    if let (Some(a), Some(b)) = (positions.get(&q), positions.get(&m)) {
-        rec.loop_closure(h.stamp, (q as u64, m as u64), (*a, *b));
+    if q >= 0 && m >= 0 {
+        rec.loop_closure(h.stamp, (q as u64, m as u64));
     }
 }

@@ -53,11 +53,7 @@ fn the_python_subscriber_receives_every_pose_bit_for_bit() {
         String::from_utf8_lossy(&printed.stderr)
     );
 
-    let trajectory: Vec<Vec<f64>> = std::fs::read_to_string(out.join("trajectory.kitti.txt"))
-        .unwrap()
-        .lines()
-        .map(|l| l.split_whitespace().map(|v| v.parse().unwrap()).collect())
-        .collect();
+    let trajectory = common::kitti_rows(&out.join("trajectory.kitti.txt"));
     let lines: Vec<&str> = text.lines().collect();
     assert_eq!(
         lines.last().copied(),

@@ -5,25 +5,6 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
 mod common;
 
-use std::path::Path;
-use std::process::Command;
-
-/// `tools/read_mcap.py FILE` as JSON.
-pub fn read_mcap(pythonpath: &Path, file: &Path) -> serde_json::Value {
-    let out = Command::new("python3")
-        .arg(common::root().join("tools/read_mcap.py"))
-        .arg(file)
-        .env("PYTHONPATH", pythonpath)
-        .output()
-        .expect("python3");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
-}
-
 /// `topic -> schema` of the table in docs/recording.md.
 fn documented_channels() -> Vec<(String, String)> {
     let doc = std::fs::read_to_string(common::root().join("docs/recording.md")).unwrap();
@@ -68,7 +49,7 @@ fn a_recorded_kitti_run_reads_back_with_the_mcap_package() {
         "{}",
         String::from_utf8_lossy(&r.stdout)
     );
-    let read = read_mcap(&pythonpath, &file);
+    let read = common::read_mcap(&pythonpath, &file);
 
     // channels and schemas as documented; every documented channel with messages here
     let documented = documented_channels();
@@ -101,11 +82,7 @@ fn a_recorded_kitti_run_reads_back_with_the_mcap_package() {
     assert_eq!(channels["/supermvo/timing"]["messages"], 160);
 
     // every posed frame's pose, in order, at its dataset time
-    let kitti: Vec<Vec<f64>> = std::fs::read_to_string(out.join("trajectory.kitti.txt"))
-        .unwrap()
-        .lines()
-        .map(|l| l.split_whitespace().map(|v| v.parse().unwrap()).collect())
-        .collect();
+    let kitti = common::kitti_rows(&out.join("trajectory.kitti.txt"));
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     let unposed: Vec<usize> = report["unposed_frames"]
@@ -114,11 +91,7 @@ fn a_recorded_kitti_run_reads_back_with_the_mcap_package() {
         .iter()
         .map(|v| v.as_u64().unwrap() as usize)
         .collect();
-    let times: Vec<f64> = std::fs::read_to_string(seq.join("times.txt"))
-        .unwrap()
-        .lines()
-        .map(|l| l.trim().parse().unwrap())
-        .collect();
+    let times = supermvo_dataset::read_times(&seq.join("times.txt")).unwrap();
     let posed: Vec<usize> = (0..kitti.len()).filter(|i| !unposed.contains(i)).collect();
     let poses = read["poses"].as_array().unwrap();
     assert_eq!(poses.len(), posed.len(), "one pose per posed frame");

@@ -90,13 +90,7 @@ fn a_websocket_client_receives_the_poses_while_the_daemon_runs() {
     );
     assert!(said.contains("recorded 160 frames (155 posed"), "{said}");
     assert!(said.contains("(end of stream)"), "{said}");
-    let read = std::process::Command::new("python3")
-        .arg(common::root().join("tools/read_mcap.py"))
-        .arg(&file)
-        .env("PYTHONPATH", &pythonpath)
-        .output()
-        .unwrap();
-    let read: serde_json::Value = serde_json::from_slice(&read.stdout).unwrap();
+    let read = common::read_mcap(&pythonpath, &file);
     assert_eq!(read["poses"].as_array().unwrap().len(), 155);
     assert_eq!(read["images"]["failed"], 0);
 
@@ -114,16 +108,8 @@ fn a_websocket_client_receives_the_poses_while_the_daemon_runs() {
     }
     // the poses as estimated: the client attached before the first one, so it gets (almost)
     // every one; each equals the trajectory's position of the frame with its time
-    let kitti: Vec<Vec<f64>> = std::fs::read_to_string(out.join("trajectory.kitti.txt"))
-        .unwrap()
-        .lines()
-        .map(|l| l.split_whitespace().map(|v| v.parse().unwrap()).collect())
-        .collect();
-    let times: Vec<f64> = std::fs::read_to_string(seq.join("times.txt"))
-        .unwrap()
-        .lines()
-        .map(|l| l.trim().parse().unwrap())
-        .collect();
+    let kitti = common::kitti_rows(&out.join("trajectory.kitti.txt"));
+    let times = supermvo_dataset::read_times(&seq.join("times.txt")).unwrap();
     let poses = got["poses"].as_array().unwrap();
     assert!(poses.len() >= 140, "{} of 155 poses received", poses.len());
     for p in poses {

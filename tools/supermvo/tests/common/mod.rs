@@ -217,3 +217,28 @@ pub fn ffmpeg_ready() -> bool {
     }
     ok
 }
+
+/// The 12 numbers of every row of a KITTI trajectory file, exactly as written.
+pub fn kitti_rows(path: &Path) -> Vec<Vec<f64>> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .map(|l| l.split_whitespace().map(|v| v.parse().unwrap()).collect())
+        .collect()
+}
+
+/// `tools/read_mcap.py FILE` (the independent MCAP reader) as JSON.
+pub fn read_mcap(pythonpath: &Path, file: &Path) -> serde_json::Value {
+    let out = Command::new("python3")
+        .arg(root().join("tools/read_mcap.py"))
+        .arg(file)
+        .env("PYTHONPATH", pythonpath)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
