@@ -17,11 +17,18 @@ adds the peer's posed frames, APE and time per frame and the ratio of the times:
 comparison on the same machine in the same minutes.
 
     python3 tools/clip_study.py [--strides 1,2,3] [--clips 00,03] [--json out.json]
-                                [--peer=ARGS] [-- ARGS]
+                                [--seeds 0,1,2] [--jobs 2] [--peer=ARGS] [-- ARGS]
+
+`--seeds` runs every sequence with each RANSAC seed and reports the run with the median
+APE; `--jobs` runs that many at once (for accuracy; timing needs one at a time). With
+`SUPERMVO_NETWORK_CACHE=DIR` the in-process runs keep the networks' results in DIR, so a
+tracker study that repeats the table computes features and matches only once
+(shared/inference/src/cache.rs).
 
 A full table takes about 15 minutes on a 2-core machine (learned front end).
 """
 import argparse
+import concurrent.futures
 import json
 import os
 import statistics
@@ -99,14 +106,19 @@ def run_one(binary, seq, out, extra):
 
 
 def main():
+    global KITTI
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--bin", default=os.path.join(ROOT, "target", "release", "supermvo"))
+    ap.add_argument("--kitti", default=KITTI, help="root of the KITTI layout (e.g. `supermvo synth --out`)")
     ap.add_argument("--strides", default="1,2,3")
     ap.add_argument("--clips", default=",".join(CLIPS))
     ap.add_argument("--json", help="also write the rows here")
     ap.add_argument("--peer", help="arguments of a second run of every sequence (space-separated)")
+    ap.add_argument("--seeds", default="0", help="RANSAC seeds, comma-separated; each row is the median run")
+    ap.add_argument("--jobs", type=int, default=1, help="runs at once (accuracy studies; not with --peer)")
     ap.add_argument("extra", nargs="*", help="arguments passed on to every `supermvo run`")
     args = ap.parse_args()
+    KITTI = os.path.abspath(args.kitti)
     if not os.path.isdir(KITTI):
         sys.exit(f"clip_study: {KITTI} not found (the KITTI clips of ../shared/data)")
     if not os.access(args.bin, os.X_OK):
@@ -115,27 +127,46 @@ def main():
     clips = [c for c in args.clips.split(",") if os.path.isdir(os.path.join(KITTI, "sequences", c))]
     rows = []
     peer = args.peer.split() if args.peer is not None else None
+    seeds = [int(x) for x in args.seeds.split(",")]
+    if peer is not None and args.jobs > 1:
+        sys.exit("clip_study: --peer compares speed, so its runs go one at a time (no --jobs)")
     header = (f"{'run':<14} {'frames':>6} {'posed':>11} {'APE (m)':>8} {'tracked':>7} "
               f"{'t_err %':>7} {'r_err':>6} {'ms/frame':>8}")
+    if len(seeds) > 1:
+        header += "  APE per seed " + " / ".join(str(x) for x in seeds) + " (row: median)"
     if peer is not None:
         header += f" | {'peer posed':>10} {'peer APE':>8} {'peer ms':>7} {'speed-up':>8}"
     print(header, flush=True)
+    fmt = lambda v, f: "–" if v is None else format(v, f)
     with tempfile.TemporaryDirectory() as tmp:
-        for c in clips:
-            for s in strides:
-                seq = subsample(c, s, tmp)
-                name = c if s == 1 else f"{c}/{s}"
-                r = run_one(args.bin, seq, os.path.join(tmp, "out", f"{c}_{s}"), args.extra)
-                r.update(clip=c, stride=s)
-                if peer is not None:
-                    out = os.path.join(tmp, "out", f"{c}_{s}_peer")
-                    r["peer"] = run_one(args.bin, seq, out, args.extra + peer)
+        tasks = [(c, s, subsample(c, s, tmp)) for c in clips for s in strides]
+
+        def one(task, seed):
+            c, s, seq = task
+            extra = args.extra + (["--seed", str(seed)] if seed else [])
+            r = run_one(args.bin, seq, os.path.join(tmp, "out", f"{c}_{s}_{seed}"), extra)
+            r.update(clip=c, stride=s, seed=seed)
+            if peer is not None:
+                out = os.path.join(tmp, "out", f"{c}_{s}_{seed}_peer")
+                r["peer"] = run_one(args.bin, seq, out, extra + peer)
+            return r
+
+        with concurrent.futures.ThreadPoolExecutor(max_workers=max(args.jobs, 1)) as pool:
+            futures = [[pool.submit(one, t, seed) for seed in seeds] for t in tasks]
+            for (c, s, _), fs in zip(tasks, futures):
+                runs = [f.result() for f in fs]
+                # the row is the run with the median APE (a failed evaluation counts as worst)
+                order = sorted(runs, key=lambda r: float("inf") if r["ape"] is None else r["ape"])
+                r = dict(order[(len(order) - 1) // 2])
+                r["seeds"] = runs
                 rows.append(r)
+                name = c if s == 1 else f"{c}/{s}"
                 share = 100.0 * r["posed"] / max(r["frames"], 1)
-                fmt = lambda v, f: "–" if v is None else format(v, f)
                 print(f"{name:<14} {r['frames']:>6} {r['posed']:>4} ({share:5.1f}%) {fmt(r['ape'], '8.3f')} "
                       f"{r['tracked_median']:>7.0f} {fmt(r['t_err'], '7.2f')} {fmt(r['r_err'], '6.2f')} "
                       f"{r['ms']:>8.1f}", end="")
+                if len(seeds) > 1:
+                    print("  " + " / ".join(fmt(q["ape"], ".3f") for q in runs), end="")
                 if peer is not None:
                     q = r["peer"]
                     print(f" | {q['posed']:>10} {fmt(q['ape'], '8.3f')} {q['ms']:>7.1f} "

@@ -13,6 +13,7 @@
 //!   and LightGlue.
 
 pub mod aliked;
+pub mod cache;
 mod error;
 pub mod lighterglue;
 pub mod models;
@@ -36,4 +37,16 @@ pub trait Extractor {
 pub trait Matcher {
     /// Matches `a` against `b`.
     fn match_features(&mut self, a: &Features, b: &Features) -> Result<Matches, InferenceError>;
+}
+
+impl<E: Extractor + ?Sized> Extractor for Box<E> {
+    fn extract(&mut self, image: &GrayImage) -> Result<Features, InferenceError> {
+        (**self).extract(image)
+    }
+}
+
+impl<M: Matcher + ?Sized> Matcher for Box<M> {
+    fn match_features(&mut self, a: &Features, b: &Features) -> Result<Matches, InferenceError> {
+        (**self).match_features(a, b)
+    }
 }

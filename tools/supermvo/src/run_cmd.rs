@@ -341,6 +341,29 @@ fn progress_bar(quiet: bool, n: usize) -> indicatif::ProgressBar {
     bar
 }
 
+type Networks = (
+    Box<dyn supermvo_inference::Extractor + Send>,
+    Box<dyn supermvo_inference::Matcher + Send>,
+);
+
+/// The networks behind the disk cache named by `SUPERMVO_NETWORK_CACHE`, when it is set (for
+/// tracker studies that re-run the same clips; `supermvo_inference::cache`), else as given.
+fn network_cache((extractor, matcher): Networks, p: &supermvo_config::PipelineConfig) -> Networks {
+    let Some(dir) = std::env::var_os("SUPERMVO_NETWORK_CACHE") else {
+        return (extractor, matcher);
+    };
+    use supermvo_inference::cache::Cached;
+    let tag = format!(
+        "{:?} top_k={} subpixel={} width={} depth={}",
+        p.frontend, p.top_k, p.subpixel_keypoints, p.width_confidence, p.depth_confidence
+    );
+    let dir = PathBuf::from(dir);
+    (
+        Box::new(Cached::new(extractor, &dir, &tag)),
+        Box::new(Cached::new(matcher, &dir, &tag)),
+    )
+}
+
 fn run_inprocess(
     args: &RunArgs,
     cfg: &Config,
@@ -356,12 +379,8 @@ fn run_inprocess(
         Some(path) => Some(InprocessRecording::create(path, args.recording.options())?),
         None => None,
     };
-    let mut pipeline = VoPipeline::new(
-        features::extractor(p)?,
-        matching::matcher(p)?,
-        tracker,
-        loops,
-    );
+    let (extractor, matcher) = network_cache((features::extractor(p)?, matching::matcher(p)?), p);
+    let mut pipeline = VoPipeline::new(extractor, matcher, tracker, loops);
     if recording.is_some() {
         pipeline = pipeline.keep_views();
     }
