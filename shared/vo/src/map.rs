@@ -20,6 +20,12 @@ pub(crate) struct Landmark {
     pub(crate) desc: Vec<f32>,
 }
 
+/// The keypoints and descriptors of a recent keyframe, kept for the triangulation against
+/// later keyframes (`tracker::covisible_triangulation`).
+pub(crate) struct KeyframeKeypoints {
+    pub(crate) features: supermvo_inference::Features,
+}
+
 /// Landmarks, pending tracks and keyframe poses (see the module docs).
 pub(crate) struct Map {
     /// The local map by landmark id: landmarks leave it once none of the last
@@ -31,6 +37,8 @@ pub(crate) struct Map {
     pub(crate) next_track: usize,
     /// `T_cam_world` of every keyframe, by id (refined by the local BA).
     pub(crate) keyframe_poses: Vec<(Mat3, Vec3)>,
+    /// Keypoints of the most recent keyframes, by id.
+    pub(crate) keyframe_keypoints: BTreeMap<usize, KeyframeKeypoints>,
     /// Id of the first keyframe of the current map: a loss starts a new map (its scale is
     /// only carried by the median depth), which the local BA and the local-map search keep
     /// apart from the old one.
@@ -48,6 +56,7 @@ impl Map {
             tracks: BTreeMap::new(),
             next_track: 0,
             keyframe_poses: Vec::new(),
+            keyframe_keypoints: BTreeMap::new(),
             segment_start: 0,
             focal,
         }
@@ -127,6 +136,23 @@ impl Map {
         self.triangulate_observations(obs)
             .filter(|tri| tri.parallax_deg > min_parallax_deg)
             .map(|tri| tri.point)
+    }
+    /// Keeps keyframe `id`'s keypoints for later triangulations, dropping those of keyframes
+    /// older than the last `keep`.
+    pub(crate) fn keep_keypoints(
+        &mut self,
+        id: usize,
+        features: &supermvo_inference::Features,
+        keep: usize,
+    ) {
+        if keep == 0 {
+            return;
+        }
+        let features = features.clone();
+        self.keyframe_keypoints
+            .insert(id, KeyframeKeypoints { features });
+        let oldest = (id + 1).saturating_sub(keep);
+        self.keyframe_keypoints.retain(|&k, _| k >= oldest);
     }
     /// Registers a keyframe pose and returns its id.
     pub(crate) fn new_keyframe_id(&mut self, r: Mat3, t: Vec3) -> usize {

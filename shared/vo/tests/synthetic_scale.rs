@@ -56,6 +56,9 @@ struct Drive {
     slow_turn: bool,
     /// Frames `blind.0..blind.1` see nothing (a covered lens, a black image): no keypoints.
     blind: (usize, usize),
+    /// The matcher misses this fraction of the true matches to the reference keyframe, at
+    /// random (a learned matcher does not find every correspondence twice in a row).
+    missed: f64,
 }
 
 /// Camera centre and heading (yaw about the camera's y axis, radians) at frame `k`.
@@ -194,6 +197,10 @@ fn run_with(
     run_counted(seed, noise_px, outliers, cfg, drive).0
 }
 
+/// What a run gives: per frame the estimated camera centre (when posed) and the true one;
+/// the frames the matcher ran for; per frame the landmarks its pose rests on.
+type Counted = (Vec<(Option<Vec3>, Vec3)>, usize, Vec<usize>);
+
 /// [`run_with`], also counting the frames for which the tracker asked for matches.
 fn run_counted(
     seed: u64,
@@ -201,10 +208,12 @@ fn run_counted(
     outliers: f64,
     cfg: TrackerConfig,
     drive: Drive,
-) -> (Vec<(Option<Vec3>, Vec3)>, usize) {
+) -> Counted {
     let mut matched = 0;
+    let mut tracked = Vec::new();
     let mut rng = Rng(0x9e37_79b9_7f4a_7c15 ^ seed.wrapping_mul(0x0123_4567));
     let mut match_rng = Rng(12345 + seed);
+    let mut miss_rng = Rng(777 + seed);
     let s = scene(&mut rng, drive);
     let mut tracker = Tracker::new(calib(), cfg);
     let mut ids_of: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
@@ -219,6 +228,7 @@ fn run_counted(
             stamp: k as f64 * 0.1,
         };
         if let Some(o) = tracker.track_without_matches(meta, &f) {
+            tracked.push(o.inliers);
             ids_of.insert(k, ids);
             out.push((
                 o.pose.map(|p| Vec3::new(p[3], p[7], p[11])),
@@ -234,6 +244,7 @@ fn run_counted(
                 .iter()
                 .enumerate()
                 .filter_map(|(a, i)| at.get(i).map(|&b| (a, b)))
+                .filter(|_| drive.missed == 0.0 || miss_rng.u() >= drive.missed)
                 .map(|(a, b)| {
                     if match_rng.u() < outliers {
                         (a, (match_rng.u() * ids.len() as f64) as usize % ids.len())
@@ -249,10 +260,11 @@ fn run_counted(
         });
         ids_of.insert(k, ids);
         let o = tracker.step(meta, f, matches.as_ref());
+        tracked.push(o.inliers);
         let est = o.pose.map(|p| Vec3::new(p[3], p[7], p[11]));
         out.push((est, path_with(k, drive).0));
     }
-    (out, matched)
+    (out, matched, tracked)
 }
 
 /// Estimated / true distance over consecutive 10-frame steps, from 5 frames after the
@@ -312,7 +324,7 @@ fn frames_between_keyframes_are_tracked_without_the_matcher() {
             ..TrackerConfig::default()
         };
         for seed in 0..3 {
-            let (traj, matched) = run_counted(seed, 0.5, 0.1, cfg.clone(), Drive::default());
+            let (traj, matched, _) = run_counted(seed, 0.5, 0.1, cfg.clone(), Drive::default());
             let share = matched as f64 / FRAMES as f64;
             let worst = worst_change(&scale_steps(&traj));
             println!("match_every_frame {every}, scene {seed}: {matched} of {FRAMES} matched, scale within {worst:.4}");
@@ -504,5 +516,40 @@ fn frames_that_see_nothing_are_relocalised_at_the_map_scale() {
         );
         assert!(unposed >= 2, "scene {scene}: {unposed}");
         assert!((after / before - 1.0).abs() > 0.05, "scene {scene}");
+    }
+}
+
+/// `TrackerConfig::covisible_triangulation_keyframes`: when the matcher misses a third of
+/// the true matches at random, a point whose chain of keyframe matches breaks never becomes
+/// a landmark from the reference pair alone; pairing each new keyframe's free keypoints
+/// with the keyframe before its reference along the epipolar line gives them back. On three
+/// scenes the median number of landmarks a pose rests on is higher with it than without
+/// (measured: 558 / 556 / 565 against 488 / 481 / 491), and the scale holds within 2 %
+/// either way.
+#[test]
+fn keyframes_triangulate_with_the_keyframe_before_their_reference() {
+    let drive = Drive {
+        missed: 0.33,
+        ..Drive::default()
+    };
+    for scene in 0..3 {
+        let median_tracked = |n: usize| {
+            let cfg = TrackerConfig {
+                covisible_triangulation_keyframes: n,
+                ..TrackerConfig::default()
+            };
+            let (traj, _, mut tracked) = run_counted(scene, 0.5, 0.1, cfg, drive);
+            let worst = worst_change(&scale_steps(&traj));
+            assert!(
+                worst < 0.02,
+                "scene {scene}, {n} keyframes: scale changed by {worst:.4}"
+            );
+            tracked.retain(|&t| t > 0);
+            tracked.sort_unstable();
+            tracked[tracked.len() / 2]
+        };
+        let (without, with) = (median_tracked(0), median_tracked(1));
+        println!("scene {scene}: median tracked {without} without, {with} with");
+        assert!(with > without, "scene {scene}: {with} against {without}");
     }
 }

@@ -79,6 +79,20 @@ pub struct TrackerConfig {
     /// frame's landmark is looked for; searched again at twice the radius when fewer than
     /// `min_tracked` are found.
     pub projection_radius_px: f64,
+    /// New landmarks between each new keyframe and this many keyframes before its reference
+    /// (free keypoints paired along the epipolar line by descriptor, triangulated with the
+    /// usual parallax and 2 px checks; `covisible_triangulation`); 0 disables (the default:
+    /// better on most KITTI runs, worse on the synthetic drives,
+    /// docs/decisions/2026-12-02-covisible-triangulation.md).
+    pub covisible_triangulation_keyframes: usize,
+    /// Largest distance (pixels) of a keypoint from the epipolar line of its pair there.
+    pub epipolar_max_px: f64,
+    /// A frame whose matches to the keyframe's landmarks agree with fewer than
+    /// `min_tracked` within the PnP gate (it would be tracked from the motion model's
+    /// prediction, or lost) is tried with the gate widened by this factor, and tracked with
+    /// it when that lets more agree: a frame far from its keyframe (low frame rate, fast
+    /// motion) sees the landmarks' depth errors magnified. 1 disables.
+    pub weak_gate_factor: f64,
     /// Essential-matrix RANSAC.
     pub ransac: RansacConfig,
     /// PnP RANSAC.
@@ -109,6 +123,9 @@ impl Default for TrackerConfig {
             relocalisation_frames: 5,
             match_every_frame: true,
             projection_radius_px: 15.0,
+            covisible_triangulation_keyframes: 0,
+            epipolar_max_px: 2.0,
+            weak_gate_factor: 1.5,
             ransac: RansacConfig::default(),
             pnp: PnpConfig::default(),
         }

@@ -35,6 +35,7 @@
 //! state machine between them (initialising, tracking, blind frames, starting over).
 
 mod config;
+mod covisible_triangulation;
 mod frame;
 mod initialisation;
 mod local_ba;
@@ -198,6 +199,7 @@ impl Tracker {
         self.map.landmarks.clear();
         self.map.tracks.clear();
         self.map.keyframe_poses.clear();
+        self.map.keyframe_keypoints.clear();
         self.map.segment_start = 0;
         self.frames_since_keyframe = 0;
         self.last_frame = None;
@@ -318,6 +320,11 @@ impl Tracker {
             track,
         });
         self.frames_since_keyframe = 0;
+        self.triangulate_with_earlier_keyframes();
+        if let Some(k) = self.keyframe.as_ref() {
+            let keep = self.cfg.covisible_triangulation_keyframes + 1;
+            self.map.keep_keypoints(k.id, &k.features, keep);
+        }
         self.local_ba();
         self.prune_map();
     }

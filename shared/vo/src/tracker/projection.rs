@@ -81,9 +81,9 @@ impl Tracker {
         );
         let mut matches = self.last_frame_matches(last, cur, &predicted);
         let found = matches.pairs.len();
-        let first = self.first_pose(&input, &matches)?;
+        let (first, pnp) = self.first_pose(&input, &matches)?;
         self.add_local_map_matches(&mut matches, cur, &first);
-        let fit = self.refine_pose(&matches, &first)?;
+        let fit = self.refine_pose(&matches, (&first, &pnp))?;
         let tracked = fit.tracked();
         let due = self.needs_keyframe(kf, tracked, self.frames_since_keyframe + 1);
         tracing::debug!(

@@ -7,7 +7,7 @@
 use super::frame::bearing;
 use super::projection::LastFrame;
 use super::{FrameMeta, FrameOutput, Keyframe, Tracker, TrackingState};
-use supermvo_geometry::pnp::{reprojection_sq, solve_pnp_ransac, PnpEstimate};
+use supermvo_geometry::pnp::{reprojection_sq, solve_pnp_ransac, PnpConfig, PnpEstimate};
 use supermvo_geometry::{Mat3, Vec3};
 use supermvo_inference::{Features, Matches};
 
@@ -56,11 +56,11 @@ impl Tracker {
             return self.unusable_reference(input, kf, cur, 0, TrackingState::Lost);
         };
         let mut matches = self.keyframe_landmark_matches(&kf, &cur, m);
-        let Some(first) = self.first_pose(input, &matches) else {
+        let Some((first, pnp)) = self.first_pose(input, &matches) else {
             return self.unusable_reference(input, kf, cur, m.pairs.len(), TrackingState::Lost);
         };
         self.add_local_map_matches(&mut matches, &cur, &first);
-        let Some(fit) = self.refine_pose(&matches, &first) else {
+        let Some(fit) = self.refine_pose(&matches, (&first, &pnp)) else {
             return self.unusable_reference(input, kf, cur, m.pairs.len(), TrackingState::Lost);
         };
         self.log_tracked(input, m, &matches, &first, &fit);
@@ -123,14 +123,31 @@ impl Tracker {
     }
 
     /// PnP RANSAC on the keyframe's landmark matches; when too few agree, the motion model's
-    /// prediction with no inliers (`None` without a motion model either).
+    /// prediction with no inliers (`None` without a motion model either). Returned with the
+    /// PnP settings the frame is tracked with: the configured gate, or, when fewer than
+    /// `min_tracked` matches agree within it, the gate widened by `weak_gate_factor` if
+    /// that lets more agree (a frame far from its keyframe, where the landmarks' depth
+    /// errors show more).
     pub(super) fn first_pose(
         &self,
         input: &FrameMeta,
         lm: &LandmarkMatches,
-    ) -> Option<PnpEstimate> {
-        solve_pnp_ransac(&lm.points, &lm.bearings, self.focal(), &self.cfg.pnp)
-            .filter(|e| e.inlier_count() >= self.cfg.min_tracked)
+    ) -> Option<(PnpEstimate, PnpConfig)> {
+        let solve = |pnp: &PnpConfig| solve_pnp_ransac(&lm.points, &lm.bearings, self.focal(), pnp);
+        let count = |e: &Option<PnpEstimate>| e.as_ref().map_or(0, |e| e.inlier_count());
+        let mut pnp = self.cfg.pnp;
+        let mut est = solve(&pnp);
+        if self.cfg.weak_gate_factor > 1.0 && count(&est) < self.cfg.min_tracked {
+            let wide = PnpConfig {
+                threshold_px: pnp.threshold_px * self.cfg.weak_gate_factor,
+                ..pnp
+            };
+            let e = solve(&wide);
+            if count(&e) > count(&est) {
+                (est, pnp) = (e, wide);
+            }
+        }
+        est.filter(|e| e.inlier_count() >= self.cfg.min_tracked)
             .or_else(|| {
                 // the keyframe's landmarks do not suffice: predict the pose with constant
                 // velocity and search the whole local map around it
@@ -142,6 +159,7 @@ impl Tracker {
                     inliers: vec![false; lm.points.len()],
                 })
             })
+            .map(|e| (e, pnp))
     }
 
     /// Adds the local-map search's matches around `first`: landmarks of the window that the
@@ -179,10 +197,14 @@ impl Tracker {
     /// RANSAC over them all; then two rounds of refinement on the matches within the PnP
     /// threshold; last, when configured, the robust refinement on every match. `None` when
     /// fewer than `min_tracked` matches agree.
-    pub(super) fn refine_pose(&self, lm: &LandmarkMatches, first: &PnpEstimate) -> Option<PoseFit> {
+    pub(super) fn refine_pose(
+        &self,
+        lm: &LandmarkMatches,
+        (first, pnp): (&PnpEstimate, &PnpConfig),
+    ) -> Option<PoseFit> {
         let (all_p, all_b) = (&lm.points, &lm.bearings);
         let from_map = lm.pairs.len() - lm.from_keyframe;
-        let thr_sq = (self.cfg.pnp.threshold_px / self.focal()).powi(2);
+        let thr_sq = (pnp.threshold_px / self.focal()).powi(2);
         let inliers_at = |r: &Mat3, t: &Vec3| -> Vec<bool> {
             all_p
                 .iter()
@@ -193,7 +215,7 @@ impl Tracker {
         let (mut r, mut t) = (first.r, first.t);
         if first.inlier_count() == 0 {
             // motion-model prediction: a PnP RANSAC over the local map's matches
-            let e = solve_pnp_ransac(all_p, all_b, self.focal(), &self.cfg.pnp)
+            let e = solve_pnp_ransac(all_p, all_b, self.focal(), pnp)
                 .filter(|e| e.inlier_count() >= self.cfg.min_tracked)?;
             (r, t) = (e.r, e.t);
         }
@@ -386,5 +408,75 @@ impl Tracker {
             counts,
             true,
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)] // test code
+    use super::*;
+    use crate::tracker::TrackerConfig;
+    use supermvo_dataset::Calibration;
+
+    /// 60 landmarks 10-40 m ahead of a camera at the origin; the keypoints of 54 of them lie
+    /// 2.4 px from their projections in scattered directions (beyond the 2 px gate, within
+    /// 1.5 times it), those of the other 6 on them.
+    fn matches() -> LandmarkMatches {
+        let (mut points, mut bearings) = (Vec::new(), Vec::new());
+        for i in 0..60 {
+            let a = i as f64 * 2.399; // golden-angle spiral: spread, deterministic
+            let z = 10.0 + 30.0 * (i as f64 / 60.0);
+            let p = Vec3::new(0.6 * z * a.cos() * 0.5, 0.2 * z * a.sin() * 0.5, z);
+            let off = if i % 10 == 0 { 0.0 } else { 2.4 / 700.0 };
+            let ang = ((i * i * 7919 + 13 * i) % 360) as f64 * std::f64::consts::PI / 180.0;
+            bearings.push(Vec3::new(
+                p.x / p.z + off * ang.cos(),
+                p.y / p.z + off * ang.sin(),
+                1.0,
+            ));
+            points.push(p);
+        }
+        LandmarkMatches {
+            pairs: (0..60).map(|i| (i, i)).collect(),
+            from_keyframe: 60,
+            points,
+            bearings,
+        }
+    }
+
+    fn tracker(weak_gate_factor: f64) -> Tracker {
+        let calib = Calibration {
+            fx: 700.0,
+            fy: 700.0,
+            cx: 620.0,
+            cy: 188.0,
+        };
+        Tracker::new(
+            calib,
+            TrackerConfig {
+                weak_gate_factor,
+                ..TrackerConfig::default()
+            },
+        )
+    }
+
+    /// Fewer than `min_tracked` (40) matches within the 2 px gate: the frame is tracked
+    /// with the gate widened to 3 px, where (nearly) all agree; without widening (and
+    /// without a motion model to fall back on) it has no pose.
+    #[test]
+    fn a_weak_frame_is_tracked_with_the_gate_widened() {
+        let meta = FrameMeta {
+            index: 7,
+            stamp: 0.7,
+        };
+        let lm = matches();
+        let (est, pnp) = tracker(1.5).first_pose(&meta, &lm).unwrap();
+        assert_eq!(pnp.threshold_px, 3.0);
+        assert!(est.inlier_count() >= 40, "{} inliers", est.inlier_count());
+        let fit = tracker(1.5).refine_pose(&lm, (&est, &pnp)).unwrap();
+        assert!(fit.tracked() >= 55, "{} tracked", fit.tracked());
+        // measured: 48 PnP inliers, 60 after the refinement, 7 cm from the true position
+        assert!(fit.t.norm() < 0.15 && (fit.r - Mat3::identity()).norm() < 5e-3);
+        assert!(tracker(1.0).first_pose(&meta, &lm).is_none());
     }
 }
