@@ -157,6 +157,10 @@ pub struct PipelineConfig {
     /// against it (at its own scale) for at most this many frames in a row before a new map
     /// is started; 0 starts one at once, [0, 100].
     pub relocalisation_frames: usize,
+    /// A frame whose keyframe matches agree with fewer landmarks than tracking needs within
+    /// the PnP gate (2 px) is tracked with the gate widened by this factor when more agree
+    /// there; 1 switches it off (the tracker before 2026-12-02), [1, 3].
+    pub pnp_gate_widening: f64,
     /// Camera file (ORB-SLAM3 / OpenCV YAML or EuRoC `sensor.yaml`) with the intrinsics and
     /// lens distortion of the frames; replaces KITTI's `calib.txt` and EuRoC's own
     /// `sensor.yaml`, and is needed by TUM and image-folder sequences without `camera.yaml`.
@@ -220,6 +224,7 @@ impl Default for PipelineConfig {
             ba_window: 6,
             keyframe_ratio: 0.0,
             relocalisation_frames: 5,
+            pnp_gate_widening: 1.5,
             camera: None,
             match_every_frame: true,
             max_restarts: 5,
@@ -294,6 +299,13 @@ impl PipelineConfig {
                 key: "pipeline.keyframe_ratio".into(),
                 value: self.keyframe_ratio.to_string(),
                 allowed: "must be in [0, 1]".into(),
+            });
+        }
+        if !(1.0..=3.0).contains(&self.pnp_gate_widening) {
+            return Err(ConfigError::OutOfRange {
+                key: "pipeline.pnp_gate_widening".into(),
+                value: self.pnp_gate_widening.to_string(),
+                allowed: "must be in [1, 3]".into(),
             });
         }
         range("top_k", self.top_k, 64, 8192)?;

@@ -27,6 +27,7 @@ pub fn tracker_config(cfg: &PipelineConfig) -> TrackerConfig {
         local_ba_window: cfg.ba_window,
         keyframe_ratio: cfg.keyframe_ratio,
         relocalisation_frames: cfg.relocalisation_frames,
+        weak_gate_factor: cfg.pnp_gate_widening,
         match_every_frame: cfg.match_every_frame,
         ..TrackerConfig::default()
     }
