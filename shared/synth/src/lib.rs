@@ -136,6 +136,20 @@ impl Sequence {
                 "--frames must be at least 2, got {frames}"
             )));
         }
+        let road = &preset.scene.path;
+        let end = preset.drive.arc_length((frames - 1) as f64 / RATE_HZ);
+        if !road.is_closed() && end > road.length() {
+            let d = &preset.drive;
+            let most = (0..frames)
+                .take_while(|&i| d.arc_length(i as f64 / RATE_HZ) <= road.length())
+                .count();
+            return Err(SynthError::Invalid(format!(
+                "--frames {frames}: preset {name}'s road is {:.0} m long and ends after {most} \
+                 frames at its speed; ask for at most {most} frames (urban-loop drives a \
+                 closed block and takes any number)",
+                road.length()
+            )));
+        }
         if camera.width < 16 || camera.height < 16 {
             return Err(SynthError::Invalid(format!(
                 "image size {}x{} is too small (at least 16x16)",

@@ -152,6 +152,17 @@ fn bad_requests_are_refused_with_the_reason() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("--frames"), "{e}");
+    // More frames than the street is long (500 m at 8 m/s: the car would stand still at its
+    // end); the loop takes any number.
+    let e = Sequence::new("dynamic", 1, Some(3000), camera(0.2))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("--frames 3000") && e.contains("dynamic") && e.contains("at most"),
+        "{e}"
+    );
+    assert!(Sequence::new("dynamic", 1, Some(500), camera(0.2)).is_ok());
+    assert!(Sequence::new("urban-loop", 1, Some(3000), camera(0.2)).is_ok());
     // An output root that is a file.
     let f = tempfile::NamedTempFile::new().unwrap();
     let seq = Sequence::new("highway", 1, Some(2), camera(0.2)).unwrap();
