@@ -27,13 +27,9 @@ impl Tracker {
     /// go into the reference's keypoints (so the next frames track them) and the map.
     pub(super) fn triangulate_with_earlier_keyframes(&mut self) {
         let n = self.cfg.covisible_triangulation_keyframes;
-        let Some(kf) = self.keyframe.as_ref() else {
+        let Some(kf_id) = self.keyframe.as_ref().map(|k| k.id).filter(|_| n > 0) else {
             return;
         };
-        let kf_id = kf.id;
-        if n == 0 {
-            return;
-        }
         // the keyframe just before the reference was matched by the network already
         let first = kf_id.saturating_sub(n + 1).max(self.map.segment_start);
         let earlier: Vec<usize> = (first..kf_id.saturating_sub(1)).rev().collect();
