@@ -40,8 +40,8 @@ def main():
             detail = json.load(f)["frames_detail"]
         ok = {d["index"] for d in detail if d.get("pose") is not None}
         posed = [i for i in posed if i in ok]
-    steps = [(a, b) for a, b in zip(posed, posed[1:])]
-    dist = lambda p, q: math.dist(p, q)
+    steps = list(zip(posed, posed[1:]))
+    dist = math.dist
 
     def ratio(pairs):
         e = sum(dist(est[a], est[b]) for a, b in pairs)

@@ -144,10 +144,6 @@ fn decode_matches(bytes: &[u8]) -> Option<Matches> {
     r.0.is_empty().then_some(Matches { pairs, scores })
 }
 
-fn feature_key(f: &Features) -> Vec<u8> {
-    encode_features(f)
-}
-
 impl<E: Extractor> Extractor for Cached<E> {
     fn extract(&mut self, image: &GrayImage) -> Result<Features, InferenceError> {
         let size = [image.width as u64, image.height as u64];
@@ -164,7 +160,7 @@ impl<E: Extractor> Extractor for Cached<E> {
 
 impl<M: Matcher> Matcher for Cached<M> {
     fn match_features(&mut self, a: &Features, b: &Features) -> Result<Matches, InferenceError> {
-        let path = self.path("matches", &[&feature_key(a), &feature_key(b)]);
+        let path = self.path("matches", &[&encode_features(a), &encode_features(b)]);
         if let Some(m) = std::fs::read(&path).ok().and_then(|b| decode_matches(&b)) {
             return Ok(m);
         }

@@ -136,10 +136,8 @@ impl Sequence {
                 "--frames must be at least 2, got {frames}"
             )));
         }
-        let road = &preset.scene.path;
-        let end = preset.drive.arc_length((frames - 1) as f64 / RATE_HZ);
-        if !road.is_closed() && end > road.length() {
-            let d = &preset.drive;
+        let (road, d) = (&preset.scene.path, &preset.drive);
+        if !road.is_closed() && d.arc_length((frames - 1) as f64 / RATE_HZ) > road.length() {
             let most = (0..frames)
                 .take_while(|&i| d.arc_length(i as f64 / RATE_HZ) <= road.length())
                 .count();

@@ -20,12 +20,6 @@ pub(crate) struct Landmark {
     pub(crate) desc: Vec<f32>,
 }
 
-/// The keypoints and descriptors of a recent keyframe, kept for the triangulation against
-/// later keyframes (`tracker::covisible_triangulation`).
-pub(crate) struct KeyframeKeypoints {
-    pub(crate) features: supermvo_inference::Features,
-}
-
 /// Landmarks, pending tracks and keyframe poses (see the module docs).
 pub(crate) struct Map {
     /// The local map by landmark id: landmarks leave it once none of the last
@@ -37,8 +31,10 @@ pub(crate) struct Map {
     pub(crate) next_track: usize,
     /// `T_cam_world` of every keyframe, by id (refined by the local BA).
     pub(crate) keyframe_poses: Vec<(Mat3, Vec3)>,
-    /// Keypoints of the most recent keyframes, by id.
-    pub(crate) keyframe_keypoints: BTreeMap<usize, KeyframeKeypoints>,
+    /// Keypoints and descriptors of the most recent keyframes, by id, kept for the
+    /// triangulation against later keyframes (`tracker::covisible_triangulation`; empty when
+    /// it is off).
+    pub(crate) keyframe_keypoints: BTreeMap<usize, supermvo_inference::Features>,
     /// Id of the first keyframe of the current map: a loss starts a new map (its scale is
     /// only carried by the median depth), which the local BA and the local-map search keep
     /// apart from the old one.
@@ -145,12 +141,7 @@ impl Map {
         features: &supermvo_inference::Features,
         keep: usize,
     ) {
-        if keep == 0 {
-            return;
-        }
-        let features = features.clone();
-        self.keyframe_keypoints
-            .insert(id, KeyframeKeypoints { features });
+        self.keyframe_keypoints.insert(id, features.clone());
         let oldest = (id + 1).saturating_sub(keep);
         self.keyframe_keypoints.retain(|&k, _| k >= oldest);
     }

@@ -60,16 +60,10 @@ fn a_websocket_client_receives_the_poses_while_the_daemon_runs() {
         .find(|w| w.starts_with("ws://"))
         .unwrap_or_else(|| panic!("no address in {first:?}"))
         .to_string();
-    let client = Command::new("python3")
-        .arg(common::root().join("tools/ws_view_client.py"))
-        .args([&url, "--timeout", "300"])
-        .env("PYTHONPATH", &pythonpath)
-        .output()
-        .unwrap();
-    assert!(
-        client.status.success(),
-        "{}",
-        String::from_utf8_lossy(&client.stderr)
+    let got = common::python_tool_json(
+        &pythonpath,
+        "ws_view_client.py",
+        &[url.as_str(), "--timeout", "300"],
     );
     let d = daemon.wait().unwrap();
     assert!(d.success(), "the daemon run failed");
@@ -94,7 +88,6 @@ fn a_websocket_client_receives_the_poses_while_the_daemon_runs() {
     assert_eq!(read["poses"].as_array().unwrap().len(), 155);
     assert_eq!(read["images"]["failed"], 0);
 
-    let got: serde_json::Value = serde_json::from_slice(&client.stdout).unwrap();
     assert_eq!(got["server"], "supermvo");
     let channels = got["channels"].as_object().unwrap();
     assert_eq!(

@@ -12,9 +12,9 @@
 
 use super::frame::bearing;
 use super::Tracker;
-use crate::map::KeyframeKeypoints;
 use supermvo_geometry::essential::triangulate_checked;
 use supermvo_geometry::Vec3;
+use supermvo_inference::Features;
 
 /// Bit pattern of a bearing, to recognise a keypoint by the bearing stored for it.
 fn bits(b: &Vec3) -> [u64; 3] {
@@ -24,7 +24,8 @@ fn bits(b: &Vec3) -> [u64; 3] {
 impl Tracker {
     /// Triangulates new landmarks between the reference keyframe (just inserted) and the
     /// `covisible_triangulation_keyframes` keyframes before it, newest first; the landmarks
-    /// go into the reference's keypoints (so the next frames track them) and the map.
+    /// go into the reference's keypoints (so the next frames track them) and the map. Then
+    /// the map keeps the reference's keypoints for the keyframes to come.
     pub(super) fn triangulate_with_earlier_keyframes(&mut self) {
         let n = self.cfg.covisible_triangulation_keyframes;
         let Some(kf_id) = self.keyframe.as_ref().map(|k| k.id).filter(|_| n > 0) else {
@@ -38,6 +39,9 @@ impl Tracker {
             created += self.triangulate_pair(j);
         }
         tracing::debug!(keyframe = kf_id, created, "covisible triangulation");
+        if let Some(k) = self.keyframe.as_ref() {
+            self.map.keep_keypoints(k.id, &k.features, n + 1);
+        }
     }
 
     /// New landmarks between the reference keyframe and earlier keyframe `j` (see the module
@@ -53,7 +57,7 @@ impl Tracker {
         let mut created = Vec::new();
         for (ik, ij) in pairs {
             let bk = bearing(&self.calib, &kf.features.keypoints[ik]);
-            let bj = bearing(&self.calib, &older.features.keypoints[ij]);
+            let bj = bearing(&self.calib, &older.keypoints[ij]);
             let views = [(view_j.0, view_j.1, bj), (view_k.0, view_k.1, bk)];
             let Some(tri) = triangulate_checked(&views, gate) else {
                 continue;
@@ -79,7 +83,7 @@ impl Tracker {
     fn epipolar_matches(
         &self,
         kf: &super::Keyframe,
-        older: &KeyframeKeypoints,
+        older: &Features,
         j: usize,
     ) -> Vec<(usize, usize)> {
         let ((r_k, t_k), (r_j, t_j)) = (self.map.keyframe_poses[kf.id], self.map.keyframe_poses[j]);
@@ -98,7 +102,7 @@ impl Tracker {
         let lines: Vec<Vec3> = free_j
             .iter()
             .map(|&i| {
-                let l = e * bearing(&self.calib, &older.features.keypoints[i]);
+                let l = e * bearing(&self.calib, &older.keypoints[i]);
                 l / l.x.hypot(l.y).max(1e-12)
             })
             .collect();
@@ -114,7 +118,7 @@ impl Tracker {
                 if bk.dot(&lines[c]).abs() > gate {
                     continue;
                 }
-                let d = supermvo_inference::descriptor_distance(dk, older.features.descriptor(ij));
+                let d = supermvo_inference::descriptor_distance(dk, older.descriptor(ij));
                 if d < best.0 {
                     (second, best) = (best.0, (d, c));
                 } else if d < second {
@@ -140,7 +144,7 @@ impl Tracker {
 
     /// Keypoints of keyframe `j` that carry no landmark and no pending track: those whose
     /// bearing no landmark or track of the map records as `j`'s observation.
-    fn free_keypoints(&self, j: usize, older: &KeyframeKeypoints) -> Vec<usize> {
+    fn free_keypoints(&self, j: usize, older: &Features) -> Vec<usize> {
         let observed: std::collections::HashSet<[u64; 3]> = self
             .map
             .landmarks
@@ -150,10 +154,8 @@ impl Tracker {
             .filter(|(k, _)| *k == j)
             .map(|(_, b)| bits(b))
             .collect();
-        (0..older.features.len())
-            .filter(|&i| {
-                !observed.contains(&bits(&bearing(&self.calib, &older.features.keypoints[i])))
-            })
+        (0..older.len())
+            .filter(|&i| !observed.contains(&bits(&bearing(&self.calib, &older.keypoints[i]))))
             .collect()
     }
 }

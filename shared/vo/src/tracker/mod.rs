@@ -321,12 +321,6 @@ impl Tracker {
         });
         self.frames_since_keyframe = 0;
         self.triangulate_with_earlier_keyframes();
-        if let Some(k) = self.keyframe.as_ref() {
-            // kept only for the covisible triangulation (none when it is off)
-            let n = self.cfg.covisible_triangulation_keyframes;
-            let keep = if n > 0 { n + 1 } else { 0 };
-            self.map.keep_keypoints(k.id, &k.features, keep);
-        }
         self.local_ba();
         self.prune_map();
     }

@@ -227,18 +227,28 @@ pub fn kitti_rows(path: &Path) -> Vec<Vec<f64>> {
         .collect()
 }
 
-/// `tools/read_mcap.py FILE` (the independent MCAP reader) as JSON.
-pub fn read_mcap(pythonpath: &Path, file: &Path) -> serde_json::Value {
+/// What `python3 tools/SCRIPT ARGS` (one of the independent readers, with the pinned
+/// packages of [`python_tools`] on `pythonpath`) prints, as JSON; it must succeed.
+pub fn python_tool_json<S: AsRef<std::ffi::OsStr>>(
+    pythonpath: &Path,
+    script: &str,
+    args: &[S],
+) -> serde_json::Value {
     let out = Command::new("python3")
-        .arg(root().join("tools/read_mcap.py"))
-        .arg(file)
+        .arg(root().join("tools").join(script))
+        .args(args)
         .env("PYTHONPATH", pythonpath)
         .output()
         .unwrap();
     assert!(
         out.status.success(),
-        "{}",
+        "{script}: {}",
         String::from_utf8_lossy(&out.stderr)
     );
     serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// `tools/read_mcap.py FILE` (the independent MCAP reader) as JSON.
+pub fn read_mcap(pythonpath: &Path, file: &Path) -> serde_json::Value {
+    python_tool_json(pythonpath, "read_mcap.py", &[file])
 }
