@@ -9,7 +9,12 @@ docs/daemon.md, "Message layouts") and prints one line per frame:
     seq frame state has_pose latency_ms r00 r01 r02 tx r10 r11 r12 ty r20 r21 r22 tz
 
 where the 12 numbers are `T_world_cam` (row-major, KITTI's order) in Python's shortest
-round-trip form, and latency is capture (ingest) to pose (tracking). It ends when the
+round-trip form, and latency is capture (ingest) to pose (tracking). The frame whose
+initialisation built the map also poses the frames seen while initialising; each of those
+follows it as one line
+
+    seq backfilled r00 r01 r02 tx r10 r11 r12 ty r20 r21 r22 tz
+ It ends when the
 pipeline's end of stream arrives, or after --timeout seconds without a message.
 
     python3 -m pip install iceoryx2==0.10.0
@@ -22,7 +27,8 @@ import time
 
 import iceoryx2 as iox2
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
+MAX_BACKFILLED = 16
 STATUS_END_OF_STREAM = 4
 STAGE_INGEST, STAGE_TRACKING = 0, 3
 
@@ -49,8 +55,17 @@ class FrameHeader(ctypes.Structure):
         return "supermvo::FrameHeader"
 
 
+class BackfilledPose(ctypes.Structure):
+    """An earlier frame's pose, sent with the frame that made it known (104 bytes)."""
+
+    _fields_ = [
+        ("seq", ctypes.c_uint64),
+        ("t_world_cam", ctypes.c_double * 12),
+    ]
+
+
 class PoseMsg(ctypes.Structure):
-    """The tracker's result for one frame (152 bytes)."""
+    """The tracker's result for one frame (1824 bytes)."""
 
     _fields_ = [
         ("state", ctypes.c_uint32),
@@ -64,6 +79,8 @@ class PoseMsg(ctypes.Structure):
         ("reference", ctypes.c_int64),
         ("match_next", ctypes.c_uint32),
         ("scale", ctypes.c_double),
+        ("backfilled_count", ctypes.c_uint32),
+        ("backfilled", BackfilledPose * MAX_BACKFILLED),
     ]
 
     @staticmethod
@@ -74,8 +91,9 @@ class PoseMsg(ctypes.Structure):
 # the sizes docs/daemon.md gives and the Rust build checks; a mismatch here means this file
 # and the pipeline disagree about the layout
 assert ctypes.sizeof(FrameHeader) == 96, ctypes.sizeof(FrameHeader)
-assert ctypes.sizeof(PoseMsg) == 152, ctypes.sizeof(PoseMsg)
+assert ctypes.sizeof(PoseMsg) == 1824, ctypes.sizeof(PoseMsg)
 assert PoseMsg.scale.offset == 144 and FrameHeader.t_ns.offset == 56
+assert PoseMsg.backfilled.offset == 160 and ctypes.sizeof(BackfilledPose) == 104
 
 
 def open_poses(node, pipeline, timeout):
@@ -97,12 +115,15 @@ def open_poses(node, pipeline, timeout):
             time.sleep(0.05)
 
 
-def line(h, p):
-    """One output line for a frame."""
+def lines(h, p):
+    """The output lines for a frame: its own, then one per earlier frame it posed."""
     t_cap, t_pose = h.t_ns[STAGE_INGEST], h.t_ns[STAGE_TRACKING]
     latency = (t_pose - t_cap) * 1e-6 if t_cap and t_pose >= t_cap else float("nan")
     pose = " ".join(repr(v) for v in p.t_world_cam) if p.has_pose else "-"
-    return f"{h.seq} {h.frame} {p.state} {p.has_pose} {latency:.1f} {pose}"
+    out = [f"{h.seq} {h.frame} {p.state} {p.has_pose} {latency:.1f} {pose}"]
+    for b in p.backfilled[:min(p.backfilled_count, MAX_BACKFILLED)]:
+        out.append(f"{b.seq} backfilled " + " ".join(repr(v) for v in b.t_world_cam))
+    return out
 
 
 def main():
@@ -132,7 +153,7 @@ def main():
         if h.status == STATUS_END_OF_STREAM:
             print(f"end of stream after {h.seq} frames", flush=True)
             return
-        print(line(h, sample.payload().contents), flush=True)
+        print("\n".join(lines(h, sample.payload().contents)), flush=True)
 
 
 if __name__ == "__main__":

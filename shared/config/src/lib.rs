@@ -119,6 +119,10 @@ impl std::str::FromStr for Frontend {
     }
 }
 
+/// Most frames seen while initialising that the tracker poses later
+/// (`pipeline.backfill_frames`): what one pose message between the daemon's processes carries.
+pub const MAX_BACKFILL_FRAMES: usize = 16;
+
 /// `[pipeline]`: the VO pipeline, in process or as the multi-process daemon.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -161,6 +165,10 @@ pub struct PipelineConfig {
     /// the PnP gate (2 px) is tracked with the gate widened by this factor when more agree
     /// there; 1 switches it off (the tracker before 2026-12-02), [1, 3].
     pub pnp_gate_widening: f64,
+    /// Frames seen while the tracker initialises (before the first map, or a new one after
+    /// a loss) are posed once the map exists, on its landmarks: the most recent this many;
+    /// 0 leaves them unposed, [0, 16] (what one pose message carries).
+    pub backfill_frames: usize,
     /// Camera file (ORB-SLAM3 / OpenCV YAML or EuRoC `sensor.yaml`) with the intrinsics and
     /// lens distortion of the frames; replaces KITTI's `calib.txt` and EuRoC's own
     /// `sensor.yaml`, and is needed by TUM and image-folder sequences without `camera.yaml`.
@@ -225,6 +233,7 @@ impl Default for PipelineConfig {
             keyframe_ratio: 0.0,
             relocalisation_frames: 5,
             pnp_gate_widening: 1.5,
+            backfill_frames: 16,
             camera: None,
             match_every_frame: true,
             max_restarts: 5,
@@ -313,6 +322,12 @@ impl PipelineConfig {
         range("features_workers", self.features_workers, 1, 8)?;
         range("ba_window", self.ba_window, 0, 30)?;
         range("relocalisation_frames", self.relocalisation_frames, 0, 100)?;
+        range(
+            "backfill_frames",
+            self.backfill_frames,
+            0,
+            MAX_BACKFILL_FRAMES,
+        )?;
         range("max_restarts", self.max_restarts, 0, 100)?;
         range("restart_backoff_ms", self.restart_backoff_ms, 0, 10_000)?;
         range("deadline_ms", self.deadline_ms, 1000, 600_000)?;

@@ -7,7 +7,7 @@
 //! All fields are little-endian (the only byte order iceoryx2 shares memory in here) and
 //! naturally aligned; `#[repr(C)]` puts them in declaration order with padding where shown.
 
-use crate::{BackendState, FrameHeader, PoseMsg, Progress, SCHEMA_VERSION};
+use crate::{BackendState, BackfilledPose, FrameHeader, PoseMsg, Progress, SCHEMA_VERSION};
 use std::mem::{align_of, offset_of, size_of};
 
 /// One field of a documented layout: name, byte offset, size in bytes.
@@ -51,6 +51,17 @@ pub fn documented() -> Vec<(&'static str, usize, usize, Vec<Field>)> {
                 ("reference", offset_of!(PoseMsg, reference), 8),
                 ("match_next", offset_of!(PoseMsg, match_next), 4),
                 ("scale", offset_of!(PoseMsg, scale), 8),
+                ("backfilled_count", offset_of!(PoseMsg, backfilled_count), 4),
+                ("backfilled", offset_of!(PoseMsg, backfilled), 16 * 104),
+            ],
+        ),
+        (
+            "supermvo::BackfilledPose",
+            size_of::<BackfilledPose>(),
+            align_of::<BackfilledPose>(),
+            vec![
+                ("seq", offset_of!(BackfilledPose, seq), 8),
+                ("t_world_cam", offset_of!(BackfilledPose, t_world_cam), 96),
             ],
         ),
         (
@@ -90,11 +101,11 @@ pub fn documented() -> Vec<(&'static str, usize, usize, Vec<Field>)> {
     ]
 }
 
-// The layouts of schema version 2. Raising SCHEMA_VERSION means a layout changed: check
+// The layouts of schema version 3. Raising SCHEMA_VERSION means a layout changed: check
 // every line below against the structs, then docs/daemon.md and examples/python/.
 const _: () = {
     assert!(
-        SCHEMA_VERSION == 2,
+        SCHEMA_VERSION == 3,
         "schema changed: update the layout checks, docs/daemon.md and examples/python"
     );
     assert!(size_of::<FrameHeader>() == 96 && align_of::<FrameHeader>() == 8);
@@ -102,11 +113,15 @@ const _: () = {
     assert!(offset_of!(FrameHeader, stamp) == 24 && offset_of!(FrameHeader, width) == 32);
     assert!(offset_of!(FrameHeader, reference) == 40 && offset_of!(FrameHeader, count) == 48);
     assert!(offset_of!(FrameHeader, dim) == 52 && offset_of!(FrameHeader, t_ns) == 56);
-    assert!(size_of::<PoseMsg>() == 152 && align_of::<PoseMsg>() == 8);
+    assert!(size_of::<PoseMsg>() == 1824 && align_of::<PoseMsg>() == 8);
     assert!(offset_of!(PoseMsg, has_pose) == 4 && offset_of!(PoseMsg, t_world_cam) == 8);
     assert!(offset_of!(PoseMsg, keyframe) == 104 && offset_of!(PoseMsg, inliers) == 116);
     assert!(offset_of!(PoseMsg, landmarks) == 120 && offset_of!(PoseMsg, reference) == 128);
     assert!(offset_of!(PoseMsg, match_next) == 136 && offset_of!(PoseMsg, scale) == 144);
+    assert!(offset_of!(PoseMsg, backfilled_count) == 152);
+    assert!(offset_of!(PoseMsg, backfilled) == 160 && crate::MAX_BACKFILLED == 16);
+    assert!(size_of::<BackfilledPose>() == 104 && align_of::<BackfilledPose>() == 8);
+    assert!(offset_of!(BackfilledPose, t_world_cam) == 8);
     assert!(size_of::<Progress>() == 72 && align_of::<Progress>() == 8);
     assert!(offset_of!(Progress, seq) == 16 && offset_of!(Progress, status) == 32);
     assert!(offset_of!(Progress, t_in_ns) == 40 && offset_of!(Progress, cpu_ns) == 64);

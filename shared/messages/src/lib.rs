@@ -20,7 +20,7 @@ use std::time::{SystemTime, UNIX_EPOCH};
 pub use iceoryx2;
 
 /// Version of the message layouts; every header carries it and receivers reject others.
-pub const SCHEMA_VERSION: u32 = 2;
+pub const SCHEMA_VERSION: u32 = 3;
 
 /// Frames in flight between ingest and tracking at most (credit-based flow control). The
 /// data services keep at least this much history so a restarted stage can pick up every
@@ -231,6 +231,26 @@ pub struct PoseMsg {
     pub match_next: u32,
     /// Map scale (median landmark depth at initialisation), or 0 before initialisation.
     pub scale: f64,
+    /// How many entries of `backfilled` hold poses.
+    pub backfilled_count: u32,
+    /// Earlier frames this frame posed (the first `backfilled_count`): those seen while the
+    /// tracker initialised, posed on the map this frame's initialisation built.
+    pub backfilled: [BackfilledPose; MAX_BACKFILLED],
+}
+
+/// Most earlier frames one [`PoseMsg`] poses (the tracker's `pipeline.backfill_frames` is at
+/// most this).
+pub const MAX_BACKFILLED: usize = 16;
+
+/// The pose of an earlier frame, sent with the frame that made it known.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("supermvo::BackfilledPose")]
+pub struct BackfilledPose {
+    /// Sequence number of the earlier frame.
+    pub seq: u64,
+    /// Its `T_world_cam`, 3x4 row-major.
+    pub t_world_cam: [f64; 12],
 }
 
 /// What the back end has recorded (payload of the `backend` service, history 1): a restarted

@@ -1,5 +1,6 @@
 //! Back end: records every frame's outcome as it arrives (one line per frame in
-//! `frames.csv`, flushed at once, so a crash loses nothing), publishes what it has recorded
+//! `frames.csv`, flushed at once, so a crash loses nothing; a frame posed later, by the
+//! initialisation after it, gets a second, `backfilled` line then), publishes what it has recorded
 //! for a restarted tracker, and writes the trajectory at the end of the stream or on SIGTERM.
 //!
 //! A restarted back end reads `frames.csv` back and continues after its last line.
@@ -108,14 +109,31 @@ impl Record {
     }
 }
 
-/// Reads `frames.csv` (the back end's record), skipping a torn last line.
+/// Status of a `frames.csv` line that gives an earlier frame's pose (`seq`), known only once
+/// a later frame's initialisation built the map it is posed on.
+pub const BACKFILLED: &str = "backfilled";
+
+/// Reads `frames.csv` (the back end's record), skipping a torn last line: one record per
+/// frame, with the poses that [`BACKFILLED`] lines gave later in their frames' records.
 pub fn read_records(path: &Path) -> Result<Vec<Record>> {
     let text = match std::fs::read_to_string(path) {
         Ok(t) => t,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
         Err(e) => return Err(e).with_context(|| format!("reading {}", path.display())),
     };
-    Ok(text.lines().skip(1).filter_map(Record::parse).collect())
+    let (late, mut records): (Vec<Record>, Vec<Record>) = text
+        .lines()
+        .skip(1)
+        .filter_map(Record::parse)
+        .partition(|r| r.status == BACKFILLED);
+    let late: std::collections::HashMap<u64, [f64; 12]> = late
+        .into_iter()
+        .filter_map(|r| r.pose.map(|p| (r.seq, p)))
+        .collect();
+    for r in records.iter_mut().filter(|r| r.pose.is_none()) {
+        r.pose = late.get(&r.seq).copied();
+    }
+    Ok(records)
 }
 
 /// The records with the loop-corrected poses the tracking stage wrote to `out` (when it
@@ -237,6 +255,25 @@ impl Recorder {
         Ok(())
     }
 
+    /// Records the pose of earlier frame `seq` (a [`BACKFILLED`] line): the frame keeps its
+    /// own record, so neither the count nor the last record changes.
+    fn backfill(&mut self, seq: u64, pose: [f64; 12], scale: f64) -> Result<()> {
+        let line = Record {
+            seq,
+            frame: 0,
+            stamp: 0.0,
+            status: BACKFILLED.to_string(),
+            state: 1,
+            pose: Some(pose),
+            scale,
+            keyframe: false,
+            latency_ms: 0.0,
+        };
+        writeln!(self.file, "{}", line.csv())
+            .and_then(|_| self.file.flush())
+            .with_context(|| format!("writing {}", self.path.display()))
+    }
+
     fn state(&self, finished: bool) -> BackendState {
         let last = self.last.as_ref();
         BackendState {
@@ -321,6 +358,9 @@ pub fn run(args: &StageArgs) -> Result<()> {
                 continue;
             }
             rec.add(record(&h, &p))?;
+            for b in p.backfilled.iter().take(p.backfilled_count as usize) {
+                rec.backfill(b.seq, b.t_world_cam, p.scale)?;
+            }
             changed = true;
             ctx.frame_done(&h, t_in, inbox.len());
             if h.status() == Status::EndOfStream {
@@ -375,5 +415,46 @@ mod tests {
         let path = dir.path().join("frames.csv");
         std::fs::write(&path, format!("{CSV_HEADER}\n{}\n3,3,0.", r.csv())).unwrap();
         assert_eq!(read_records(&path).unwrap(), vec![r]);
+    }
+
+    /// A frame posed later (a `backfilled` line after its own) reads back as one record with
+    /// that pose; the count and the last record are the frames', as a restarted back end
+    /// needs them.
+    #[test]
+    fn backfilled_poses_join_their_frames_records() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut rec = Recorder::open(dir.path()).unwrap();
+        let frame = |seq: u64, pose: Option<[f64; 12]>| Record {
+            seq,
+            frame: seq,
+            stamp: seq as f64 * 0.1,
+            status: "ok".into(),
+            state: if pose.is_some() { 1 } else { 0 },
+            pose,
+            scale: 0.0,
+            keyframe: pose.is_some(),
+            latency_ms: 1.0,
+        };
+        let pose = |x: f64| [1.0, 0.0, 0.0, x, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+        rec.add(frame(0, Some(pose(0.0)))).unwrap();
+        rec.add(frame(1, None)).unwrap();
+        rec.add(frame(2, None)).unwrap();
+        rec.add(frame(3, Some(pose(3.0)))).unwrap();
+        rec.backfill(1, pose(1.0), 5.0).unwrap();
+        rec.backfill(2, pose(2.0), 5.0).unwrap();
+        let records = read_records(&rec.path).unwrap();
+        let poses: Vec<Option<f64>> = records.iter().map(|r| r.pose.map(|p| p[3])).collect();
+        assert_eq!(poses, [Some(0.0), Some(1.0), Some(2.0), Some(3.0)]);
+        assert_eq!(
+            records[1],
+            Record {
+                pose: Some(pose(1.0)),
+                ..frame(1, None)
+            }
+        );
+        drop(rec);
+        let reopened = Recorder::open(dir.path()).unwrap();
+        assert_eq!(reopened.count, 4);
+        assert_eq!(reopened.last.as_ref().map(|r| r.seq), Some(3));
     }
 }

@@ -9,13 +9,12 @@ use anyhow::Result;
 use std::time::Duration;
 use supermvo_config::PipelineConfig;
 use supermvo_dataset::Sequence;
-use supermvo_geometry::{Mat3, Pose, Vec3};
 use supermvo_inference::{Features, FrameView, Matches};
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
 use supermvo_messages::iceoryx2::prelude::*;
 use supermvo_messages::{
-    now_ns, BackendState, FrameHeader, MatchEntry, MatchRequest, MessageError, PoseMsg, StageKind,
-    Status, Topic, ViewHeader,
+    now_ns, BackendState, BackfilledPose, FrameHeader, MatchEntry, MatchRequest, MessageError,
+    PoseMsg, StageKind, Status, Topic, ViewHeader, MAX_BACKFILLED,
 };
 use supermvo_vo::loops::{LoopCloser, LoopConfig};
 use supermvo_vo::pipeline::close_loops;
@@ -28,6 +27,7 @@ pub fn tracker_config(cfg: &PipelineConfig) -> TrackerConfig {
         keyframe_ratio: cfg.keyframe_ratio,
         relocalisation_frames: cfg.relocalisation_frames,
         weak_gate_factor: cfg.pnp_gate_widening,
+        backfill_frames: cfg.backfill_frames,
         match_every_frame: cfg.match_every_frame,
         ..TrackerConfig::default()
     }
@@ -52,7 +52,11 @@ pub fn tracker_config(cfg: &PipelineConfig) -> TrackerConfig {
     }
 }
 
-/// A tracker result as a message payload.
+// the configuration's bound on the backfilled frames is what a pose message carries
+const _: () = assert!(supermvo_config::MAX_BACKFILL_FRAMES == MAX_BACKFILLED);
+
+/// A tracker result as a message payload (the tracker's frame indices are sequence numbers
+/// in the daemon, see `frame_meta`).
 pub fn pose_msg(o: &FrameOutput) -> PoseMsg {
     PoseMsg {
         state: match o.state {
@@ -70,16 +74,19 @@ pub fn pose_msg(o: &FrameOutput) -> PoseMsg {
         reference: o.reference.map_or(-1, |r| r as i64),
         match_next: o.match_next as u32,
         scale: o.scale.unwrap_or(0.0),
+        backfilled_count: o.backfilled.len().min(MAX_BACKFILLED) as u32,
+        backfilled: std::array::from_fn(|i| {
+            o.backfilled
+                .get(i)
+                .map_or_else(Default::default, |l| BackfilledPose {
+                    seq: l.index as u64,
+                    t_world_cam: l.pose,
+                })
+        }),
     }
 }
 
-/// `T_world_cam` of a 3x4 row-major array.
-pub fn pose_of(p: &[f64; 12]) -> Pose {
-    Pose::new(
-        Mat3::new(p[0], p[1], p[2], p[4], p[5], p[6], p[8], p[9], p[10]),
-        Vec3::new(p[3], p[7], p[11]),
-    )
-}
+pub use supermvo_vo::tracker::pose_of;
 
 /// Runs the tracking stage until SIGTERM.
 pub fn run(args: &StageArgs) -> Result<()> {

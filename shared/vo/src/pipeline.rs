@@ -2,7 +2,7 @@
 //! and the loop closer's feedback to the tracker that the daemon uses too.
 
 use crate::stage::Stage;
-use crate::tracker::{output_pose, FrameInput, FrameMeta, FrameOutput, Tracker};
+use crate::tracker::{output_pose, pose_of, FrameInput, FrameMeta, FrameOutput, Tracker};
 use supermvo_inference::{Extractor, FrameView, InferenceError, Matcher};
 
 /// Extractor, matcher and tracker in one process, one after the other: the reference
@@ -67,6 +67,10 @@ pub fn close_loops(
     tracker: &mut Tracker,
     out: &FrameOutput,
 ) -> Option<crate::loops::Correction> {
+    for late in &out.backfilled {
+        // frames posed by this one's initialisation belong before it, with the reference
+        loops.add_frame(late.index, &pose_of(&late.pose));
+    }
     let pose = output_pose(out)?;
     if !out.keyframe {
         loops.add_frame(out.index, &pose);

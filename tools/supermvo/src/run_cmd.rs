@@ -16,7 +16,7 @@ use supermvo_pipeline::{features, matching, tracking};
 use supermvo_vo::loops::{LoopCloser, LoopConfig};
 use supermvo_vo::pipeline::VoPipeline;
 use supermvo_vo::stage::Timed;
-use supermvo_vo::tracker::{output_pose, FrameInput, Tracker, TrackingState};
+use supermvo_vo::tracker::{FrameInput, Tracker, TrackingState};
 
 /// A run stopped by SIGINT (Ctrl-C) or SIGTERM after writing what it had: the CLI exits
 /// with 130, as shells report an interrupted program.
@@ -445,10 +445,7 @@ fn run_inprocess(
     // every frame's pose (moved by the loop corrections when loops are closed), by index
     let posed: std::collections::BTreeMap<usize, supermvo_geometry::Pose> = match closer {
         Some(c) => c.trajectory().into_iter().collect(),
-        None => outputs
-            .iter()
-            .filter_map(|o| output_pose(o).map(|p| (o.index, p)))
-            .collect(),
+        None => outputs.iter().flat_map(|o| o.poses()).collect(),
     };
     let loops = closer.map(|c| c.loops()).unwrap_or_default();
     if let Some(reason) = closer.and_then(|c| c.disabled_reason()) {

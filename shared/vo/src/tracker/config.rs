@@ -93,6 +93,10 @@ pub struct TrackerConfig {
     /// it when that lets more agree: a frame far from its keyframe (low frame rate, fast
     /// motion) sees the landmarks' depth errors magnified. 1 disables.
     pub weak_gate_factor: f64,
+    /// Frames seen while initialising (too little parallax to the reference yet) that are
+    /// posed once the map exists, on its landmarks (`initialising_frames`): the most recent
+    /// this many; 0 leaves them unposed.
+    pub backfill_frames: usize,
     /// Essential-matrix RANSAC.
     pub ransac: RansacConfig,
     /// PnP RANSAC.
@@ -126,6 +130,7 @@ impl Default for TrackerConfig {
             covisible_triangulation_keyframes: 0,
             epipolar_max_px: 2.0,
             weak_gate_factor: 1.5,
+            backfill_frames: 16,
             ransac: RansacConfig::default(),
             pnp: PnpConfig::default(),
         }

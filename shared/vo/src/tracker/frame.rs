@@ -56,6 +56,33 @@ pub struct FrameOutput {
     pub match_next: bool,
     /// Scale of the map (median landmark depth at initialisation), once initialised.
     pub scale: Option<f64>,
+    /// Earlier frames posed by this frame: those seen while the tracker initialised (too
+    /// little parallax to the reference yet), posed against the map this frame's
+    /// initialisation built; empty on every other frame.
+    pub backfilled: Vec<LatePose>,
+}
+
+/// The pose of an earlier frame, known only once a later frame built the map it is posed on.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct LatePose {
+    /// Frame index.
+    pub index: usize,
+    /// Timestamp, seconds.
+    pub stamp: f64,
+    /// `T_world_cam` as a 3x4 row-major matrix.
+    pub pose: [f64; 12],
+}
+
+impl FrameOutput {
+    /// Every pose this output gives, `(frame index, T_world_cam)`: the frames it
+    /// [backfilled](FrameOutput::backfilled) (in frame order), then its own.
+    pub fn poses(&self) -> impl Iterator<Item = (usize, Pose)> + '_ {
+        let own = output_pose(self).map(|p| (self.index, p));
+        self.backfilled
+            .iter()
+            .map(|l| (l.index, pose_of(&l.pose)))
+            .chain(own)
+    }
 }
 
 /// Index and time of a frame.
@@ -69,12 +96,15 @@ pub struct FrameMeta {
 
 /// The pose of an output as a [`Pose`].
 pub fn output_pose(o: &FrameOutput) -> Option<Pose> {
-    o.pose.map(|p| {
-        Pose::new(
-            Mat3::new(p[0], p[1], p[2], p[4], p[5], p[6], p[8], p[9], p[10]),
-            Vec3::new(p[3], p[7], p[11]),
-        )
-    })
+    o.pose.as_ref().map(pose_of)
+}
+
+/// A 3x4 row-major `T_world_cam` as a [`Pose`].
+pub fn pose_of(p: &[f64; 12]) -> Pose {
+    Pose::new(
+        Mat3::new(p[0], p[1], p[2], p[4], p[5], p[6], p[8], p[9], p[10]),
+        Vec3::new(p[3], p[7], p[11]),
+    )
 }
 
 pub(crate) fn bearing(c: &Calibration, p: &[f32; 2]) -> Vec3 {

@@ -3,7 +3,7 @@
 //! the scale is a unit baseline at the first map and the last map's median depth after.
 
 use super::frame::bearing;
-use super::{FrameMeta, FrameOutput, Tracker, TrackingState};
+use super::{FrameMeta, FrameOutput, Keyframe, Tracker, TrackingState};
 use supermvo_geometry::essential::{find_essential, recover_pose, triangulate_checked};
 use supermvo_geometry::{Mat3, Vec3};
 use supermvo_inference::{Features, Matches};
@@ -57,13 +57,7 @@ impl Tracker {
             return self.unusable_reference(input, kf, cur, m.pairs.len(), state);
         }
         if parallax < self.cfg.min_parallax_px {
-            return self.keep_reference(
-                input,
-                kf,
-                TrackingState::Initializing,
-                cur.len(),
-                (m.pairs.len(), 0),
-            );
+            return self.not_initialised_yet(input, kf, (&cur, m), 0);
         }
         let x1: Vec<Vec3> = m
             .pairs
@@ -76,13 +70,7 @@ impl Tracker {
             .map(|&(_, b)| bearing(&self.calib, &cur.keypoints[b]))
             .collect();
         let Some(est) = find_essential(&x1, &x2, self.focal(), &self.cfg.ransac) else {
-            return self.keep_reference(
-                input,
-                kf,
-                TrackingState::Initializing,
-                cur.len(),
-                (m.pairs.len(), 0),
-            );
+            return self.not_initialised_yet(input, kf, (&cur, m), 0);
         };
         let (r_rel, t_rel, _) = recover_pose(&est.e, &x1, &x2, &est.inliers, 1e3);
         // scale: unit baseline at the first initialisation; afterwards keep the map's scale
@@ -98,13 +86,7 @@ impl Tracker {
         let unit =
             self.triangulate_pairs(identity, &kf.features.keypoints, &cur, &r_rel, &t_rel, &inl);
         if unit.len() < self.cfg.min_init_landmarks {
-            return self.keep_reference(
-                input,
-                kf,
-                TrackingState::Initializing,
-                cur.len(),
-                (m.pairs.len(), unit.len()),
-            );
+            return self.not_initialised_yet(input, kf, (&cur, m), unit.len());
         }
         let mut depths: Vec<f64> = unit.iter().map(|(_, _, p)| p.z).collect();
         depths.sort_by(f64::total_cmp);
@@ -124,6 +106,7 @@ impl Tracker {
         let (keypoints, landmark) = (cur.len(), vec![None; cur.len()]);
         let init = (&inl[..], self.cfg.min_init_parallax_deg);
         self.insert_keyframe(&kf, cur, (input.index, cur_id), (r, t), landmark, init);
+        let backfilled = self.pose_initialising_frames(&self.reference_landmarks(&inl));
         // the motion per frame between reference and new keyframe is the first motion model:
         // should the next frame's PnP on the new (small) map fail, the prediction and the
         // local-map search still have a pose to start from
@@ -131,14 +114,43 @@ impl Tracker {
         let r_step = supermvo_geometry::so3_exp(&(supermvo_geometry::so3_log(&r_rel) / gap));
         self.velocity = Some((r_step, t_rel / gap));
         let counts = (m.pairs.len(), est.inlier_count());
-        self.output(
+        let mut out = self.output(
             input,
             TrackingState::Tracking,
             Some((r, t)),
             keypoints,
             counts,
             true,
-        )
+        );
+        out.backfilled = backfilled;
+        out
+    }
+
+    /// A frame that does not initialise against the reference `kf` yet (too little
+    /// parallax, no essential matrix, too few landmarks from it: `landmarks`): no pose, the
+    /// reference stays, and the frame is kept to be posed once the map exists.
+    fn not_initialised_yet(
+        &mut self,
+        input: &FrameMeta,
+        kf: Keyframe,
+        (cur, m): (&Features, &Matches),
+        landmarks: usize,
+    ) -> FrameOutput {
+        self.keep_initialising_frame(input, cur, m);
+        let state = TrackingState::Initializing;
+        self.keep_reference(input, kf, state, cur.len(), (m.pairs.len(), landmarks))
+    }
+
+    /// `(reference keypoint, landmark id)` of the initialisation's matches `(reference
+    /// keypoint, keypoint of the new keyframe)` that became landmarks.
+    fn reference_landmarks(&self, matches: &[(usize, usize)]) -> Vec<(usize, usize)> {
+        let Some(kf) = self.keyframe.as_ref() else {
+            return Vec::new();
+        };
+        matches
+            .iter()
+            .filter_map(|&(a, b)| kf.landmark.get(b).copied().flatten().map(|id| (a, id)))
+            .collect()
     }
 
     /// Triangulates matched keypoints between a keyframe and the current frame (both

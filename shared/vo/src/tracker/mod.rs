@@ -38,13 +38,16 @@ mod config;
 mod covisible_triangulation;
 mod frame;
 mod initialisation;
+mod initialising_frames;
 mod local_ba;
 mod map_search;
 mod projection;
 mod tracking;
 
 pub use config::TrackerConfig;
-pub use frame::{output_pose, FrameInput, FrameMeta, FrameOutput, TrackingState};
+pub use frame::{
+    output_pose, pose_of, FrameInput, FrameMeta, FrameOutput, LatePose, TrackingState,
+};
 pub use local_ba::BaStats;
 
 use crate::map::Map;
@@ -91,6 +94,9 @@ pub struct Tracker {
     /// The landmarks the last frame saw, when it was tracked: what the next frame is
     /// tracked from by projection when it comes without matches.
     last_frame: Option<projection::LastFrame>,
+    /// Frames seen while initialising against the current reference, posed once the map
+    /// exists.
+    initialising: initialising_frames::InitialisingFrames,
 }
 
 impl std::fmt::Debug for Tracker {
@@ -114,6 +120,7 @@ impl Tracker {
             last_ba: None,
             scale: None,
             last_frame: None,
+            initialising: Default::default(),
         }
     }
 
@@ -253,6 +260,7 @@ impl Tracker {
             reference: None,
             match_next: true,
             scale: None,
+            backfilled: Vec::new(),
         }
     }
 
@@ -260,6 +268,7 @@ impl Tracker {
     /// starts from it).
     fn set_reference(&mut self, frame: usize, r: Mat3, t: Vec3, cur: Features) {
         let id = self.map.new_keyframe_id(r, t);
+        self.initialising.clear();
         let (landmark, track) = (vec![None; cur.len()], vec![None; cur.len()]);
         self.keyframe = Some(Keyframe {
             id,

@@ -133,6 +133,29 @@ impl Tracker {
         input: &FrameMeta,
         lm: &LandmarkMatches,
     ) -> Option<(PnpEstimate, PnpConfig)> {
+        let (est, pnp) = self.pnp_with_weak_gate(lm);
+        est.filter(|e| e.inlier_count() >= self.cfg.min_tracked)
+            .or_else(|| {
+                // the keyframe's landmarks do not suffice: predict the pose with constant
+                // velocity and search the whole local map around it
+                let (r, t) = self.predict()?;
+                tracing::debug!(frame = input.index, "keyframe PnP failed: motion model");
+                Some(PnpEstimate {
+                    r,
+                    t,
+                    inliers: vec![false; lm.points.len()],
+                })
+            })
+            .map(|e| (e, pnp))
+    }
+
+    /// PnP RANSAC on `lm` at the configured gate, or at the gate widened by
+    /// `weak_gate_factor` when fewer than `min_tracked` matches agree and the wider gate
+    /// lets more agree; with the settings used.
+    pub(super) fn pnp_with_weak_gate(
+        &self,
+        lm: &LandmarkMatches,
+    ) -> (Option<PnpEstimate>, PnpConfig) {
         let solve = |pnp: &PnpConfig| solve_pnp_ransac(&lm.points, &lm.bearings, self.focal(), pnp);
         let count = |e: &Option<PnpEstimate>| e.as_ref().map_or(0, |e| e.inlier_count());
         let mut pnp = self.cfg.pnp;
@@ -147,19 +170,7 @@ impl Tracker {
                 (est, pnp) = (e, wide);
             }
         }
-        est.filter(|e| e.inlier_count() >= self.cfg.min_tracked)
-            .or_else(|| {
-                // the keyframe's landmarks do not suffice: predict the pose with constant
-                // velocity and search the whole local map around it
-                let (r, t) = self.predict()?;
-                tracing::debug!(frame = input.index, "keyframe PnP failed: motion model");
-                Some(PnpEstimate {
-                    r,
-                    t,
-                    inliers: vec![false; lm.points.len()],
-                })
-            })
-            .map(|e| (e, pnp))
+        (est, pnp)
     }
 
     /// Adds the local-map search's matches around `first`: landmarks of the window that the
