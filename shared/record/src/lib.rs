@@ -151,7 +151,14 @@ pub struct Recorder {
     last_position: Option<[f64; 3]>,
     /// Camera position of every posed frame, by frame index (for loop edges).
     positions: std::collections::BTreeMap<u64, [f64; 3]>,
+    /// The most recent frames recorded without a pose, by sequence number: `(frame,
+    /// stamp)`, for a pose that comes later ([`Recorder::late_pose`]).
+    unposed: std::collections::BTreeMap<u64, (u64, f64)>,
 }
+
+/// Unposed frames a recorder remembers for poses that come later (the tracker poses at most
+/// 16 frames late).
+const UNPOSED_KEPT: usize = 64;
 
 impl std::fmt::Debug for Recorder {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -202,6 +209,7 @@ impl Recorder {
             summary: RecordSummary::default(),
             last_position: None,
             positions: std::collections::BTreeMap::new(),
+            unposed: std::collections::BTreeMap::new(),
         })
     }
 
@@ -226,8 +234,14 @@ impl Recorder {
             .frame
             .log_with_meta(state.to_string().as_bytes(), at);
         self.summary.frames += 1;
-        if let Some(t) = &f.t_world_cam {
-            self.pose(f, t);
+        match &f.t_world_cam {
+            Some(t) => self.pose(f, t),
+            None => {
+                self.unposed.insert(f.seq, (f.frame, f.stamp));
+                if self.unposed.len() > UNPOSED_KEPT {
+                    self.unposed.pop_first();
+                }
+            }
         }
         if let Some(points) = f.view.and_then(|v| v.map_points.as_ref()) {
             let cloud = channels::point_cloud(f.stamp, points);
@@ -236,17 +250,37 @@ impl Recorder {
         self.image(f);
     }
 
-    fn pose(&mut self, f: &FrameRecord<'_>, t: &[f64; 12]) {
-        let at = channels::at(f.stamp);
+    /// The pose of an earlier frame (sequence number `seq`), recorded without one, that a
+    /// later frame made known (the tracker poses the frames seen while it initialised once
+    /// the map exists): its pose and transform at that frame's time. Ignored for a frame not
+    /// among the last unposed ones recorded.
+    pub fn late_pose(&mut self, seq: u64, t_world_cam: &[f64; 12]) {
+        let Some((frame, stamp)) = self.unposed.remove(&seq) else {
+            return;
+        };
+        self.pose_at(stamp, t_world_cam);
+        self.positions
+            .insert(frame, [t_world_cam[3], t_world_cam[7], t_world_cam[11]]);
+    }
+
+    /// Pose and transform messages at `stamp`.
+    fn pose_at(&mut self, stamp: f64, t: &[f64; 12]) {
+        let at = channels::at(stamp);
         let pose = foxglove::messages::PoseInFrame {
-            timestamp: Some(channels::timestamp(f.stamp)),
+            timestamp: Some(channels::timestamp(stamp)),
             frame_id: "world".into(),
             pose: Some(channels::pose(t)),
         };
         self.channels.pose.log_with_meta(&pose, at);
         self.channels
             .tf
-            .log_with_meta(&channels::transform(f.stamp, t), at);
+            .log_with_meta(&channels::transform(stamp, t), at);
+        self.summary.poses += 1;
+    }
+
+    fn pose(&mut self, f: &FrameRecord<'_>, t: &[f64; 12]) {
+        let at = channels::at(f.stamp);
+        self.pose_at(f.stamp, t);
         let position = [t[3], t[7], t[11]];
         if let Some(prev) = self.last_position {
             let id = format!("trajectory/{}", f.seq);
@@ -255,7 +289,6 @@ impl Recorder {
         }
         self.last_position = Some(position);
         self.positions.insert(f.frame, position);
-        self.summary.poses += 1;
     }
 
     fn image(&mut self, f: &FrameRecord<'_>) {

@@ -96,6 +96,9 @@ impl InprocessRecording {
             }),
         };
         self.recorder.frame(&record);
+        for late in &out.backfilled {
+            self.recorder.late_pose(late.index as u64, &late.pose);
+        }
         self.recorder.timing(&Timing {
             frame: out.index as u64,
             stamp: out.stamp,
@@ -367,6 +370,10 @@ fn record_viewed(rec: &mut Recorder, f: &supermvo_pipeline::viewer::ViewedFrame)
             pixels: px,
         }),
     });
+    let late = p.backfilled.iter().take(p.backfilled_count as usize);
+    for b in late {
+        rec.late_pose(b.seq, &b.t_world_cam);
+    }
     let (stage_ms, capture_to_pose_ms) = f.stage_ms();
     rec.timing(&Timing {
         frame: h.frame,

@@ -81,7 +81,7 @@ impl Tracker {
                 frame = f.meta.index,
                 landmark_matches = lm.pairs.len(),
                 tracked = fit.as_ref().map_or(0, |f| f.tracked()),
-                "initialising frame posed on the new map"
+                "initialising frame tried on the new map"
             );
             if let Some(fit) = fit {
                 posed.push(LatePose {

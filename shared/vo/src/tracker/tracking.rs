@@ -57,14 +57,15 @@ impl Tracker {
         };
         let mut matches = self.keyframe_landmark_matches(&kf, &cur, m);
         let Some((first, pnp)) = self.first_pose(input, &matches) else {
-            return self.unusable_reference(input, kf, cur, m.pairs.len(), TrackingState::Lost);
+            return self.tracking_failed(input, kf, cur, m);
         };
         self.add_local_map_matches(&mut matches, &cur, &first);
         let Some(fit) = self.refine_pose(&matches, (&first, &pnp)) else {
-            return self.unusable_reference(input, kf, cur, m.pairs.len(), TrackingState::Lost);
+            return self.tracking_failed(input, kf, cur, m);
         };
         self.log_tracked(input, m, &matches, &first, &fit);
         self.update_motion_model(input, &fit);
+        self.count_visibility(&cur, &matches, &fit);
         let tracked = fit.tracked();
         if !self.needs_keyframe(&kf, tracked, self.frames_since_keyframe) {
             self.last_frame = Some(LastFrame::tracked(&cur, &matches, &fit));
@@ -84,7 +85,8 @@ impl Tracker {
         self.make_keyframe(input, kf, cur, m, (&matches, &fit))
     }
 
-    /// The matches to the reference keyframe whose keyframe keypoint carries a landmark.
+    /// The matches to the reference keyframe whose keyframe keypoint carries a landmark (one
+    /// still in the map: culling may have dropped it).
     fn keyframe_landmark_matches(
         &self,
         kf: &Keyframe,
@@ -95,6 +97,7 @@ impl Tracker {
             .pairs
             .iter()
             .filter_map(|&(a, b)| kf.landmark[a].map(|id| (b, id)))
+            .filter(|(_, id)| self.map.landmarks.contains_key(id))
             .collect();
         self.landmark_matches(pairs, cur)
     }
@@ -309,6 +312,26 @@ impl Tracker {
     /// The frame's pose becomes the last pose; the motion since the last tracked one the
     /// constant-velocity model (after a relocalisation the gap spans failed frames, so the
     /// model starts again).
+    /// Counts the tracked frame for the landmarks' found ratio (`cull_found_ratio`): those
+    /// projecting into its image at its pose, and those among its inliers.
+    pub(super) fn count_visibility(&mut self, cur: &Features, lm: &LandmarkMatches, fit: &PoseFit) {
+        if self.cfg.cull_found_ratio <= 0.0 {
+            return;
+        }
+        let inliers = lm
+            .pairs
+            .iter()
+            .zip(&fit.inlier)
+            .filter(|(_, &ok)| ok)
+            .map(|(&(_, id), _)| id)
+            .collect();
+        let c = self.calib;
+        let project = |q: &Vec3| (c.fx * q.x / q.z + c.cx, c.fy * q.y / q.z + c.cy);
+        let size = (cur.image_size.0 as f64, cur.image_size.1 as f64);
+        self.map
+            .count_visibility((&fit.r, &fit.t), size, project, &inliers);
+    }
+
     pub(super) fn update_motion_model(&mut self, input: &FrameMeta, fit: &PoseFit) {
         let (r, t) = (fit.r, fit.t);
         if self.lost_streak > 0 {
