@@ -173,10 +173,6 @@ pub struct PipelineConfig {
     /// starts a new map from that keyframe, whose pose is known, as its second view; false:
     /// the frame itself starts the new map, placed at the last tracked pose.
     pub reinitialise_on_reference: bool,
-    /// A landmark that tracked frames found in fewer than this fraction of the frames it
-    /// projected into (once it projected into 4) leaves the map at the next keyframe; 0 (the
-    /// default) keeps it, [0, 1].
-    pub landmark_found_ratio: f64,
     /// Camera file (ORB-SLAM3 / OpenCV YAML or EuRoC `sensor.yaml`) with the intrinsics and
     /// lens distortion of the frames; replaces KITTI's `calib.txt` and EuRoC's own
     /// `sensor.yaml`, and is needed by TUM and image-folder sequences without `camera.yaml`.
@@ -243,7 +239,6 @@ impl Default for PipelineConfig {
             pnp_gate_widening: 1.5,
             backfill_frames: 16,
             reinitialise_on_reference: true,
-            landmark_found_ratio: 0.0,
             camera: None,
             match_every_frame: true,
             max_restarts: 5,
@@ -317,13 +312,6 @@ impl PipelineConfig {
             return Err(ConfigError::OutOfRange {
                 key: "pipeline.keyframe_ratio".into(),
                 value: self.keyframe_ratio.to_string(),
-                allowed: "must be in [0, 1]".into(),
-            });
-        }
-        if !(0.0..=1.0).contains(&self.landmark_found_ratio) {
-            return Err(ConfigError::OutOfRange {
-                key: "pipeline.landmark_found_ratio".into(),
-                value: self.landmark_found_ratio.to_string(),
                 allowed: "must be in [0, 1]".into(),
             });
         }

@@ -29,7 +29,6 @@ pub fn tracker_config(cfg: &PipelineConfig) -> TrackerConfig {
         weak_gate_factor: cfg.pnp_gate_widening,
         backfill_frames: cfg.backfill_frames,
         reinitialise_on_reference: cfg.reinitialise_on_reference,
-        cull_found_ratio: cfg.landmark_found_ratio,
         match_every_frame: cfg.match_every_frame,
         ..TrackerConfig::default()
     }

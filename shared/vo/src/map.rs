@@ -18,10 +18,6 @@ pub(crate) struct Landmark {
     pub(crate) obs: Vec<(usize, Vec3)>,
     /// Descriptor of the latest observation.
     pub(crate) desc: Vec<f32>,
-    /// Tracked frames in whose image it projected at their final pose.
-    pub(crate) visible: u32,
-    /// Tracked frames whose pose it was an inlier of.
-    pub(crate) found: u32,
 }
 
 /// Landmarks, pending tracks and keyframe poses (see the module docs).
@@ -68,16 +64,7 @@ impl Map {
         let id = self.next_landmark;
         self.next_landmark += 1;
         let desc = desc.to_vec();
-        self.landmarks.insert(
-            id,
-            Landmark {
-                p,
-                obs,
-                desc,
-                visible: 0,
-                found: 0,
-            },
-        );
+        self.landmarks.insert(id, Landmark { p, obs, desc });
         id
     }
     /// Adds keyframe `kf_id`'s observation `(bearing, descriptor)` to landmark `id` and
@@ -158,41 +145,6 @@ impl Map {
         let oldest = (id + 1).saturating_sub(keep);
         self.keyframe_keypoints.retain(|&k, _| k >= oldest);
     }
-    /// Counts a tracked frame at `T_cam_world = (r, t)` of an image `size` (pixels, with
-    /// `project`ion to pixels) for every landmark: visible where it projects into the image
-    /// in front of the camera, found where it is among `inliers` (landmark ids).
-    pub(crate) fn count_visibility(
-        &mut self,
-        (r, t): (&Mat3, &Vec3),
-        size: (f64, f64),
-        project: impl Fn(&Vec3) -> (f64, f64),
-        inliers: &std::collections::BTreeSet<usize>,
-    ) {
-        for (id, lm) in self.landmarks.iter_mut() {
-            let q = r * lm.p + t;
-            if q.z <= 1e-6 {
-                continue;
-            }
-            let (u, v) = project(&q);
-            if u < 0.0 || v < 0.0 || u >= size.0 || v >= size.1 {
-                continue;
-            }
-            lm.visible += 1;
-            if inliers.contains(id) {
-                lm.found += 1;
-            }
-        }
-    }
-    /// Drops the landmarks that tracked frames found in fewer than `ratio` of the frames
-    /// they projected into, once they projected into `min_visible` (ORB-SLAM's found ratio):
-    /// a point whose position is wrong keeps projecting where its keypoint is not.
-    pub(crate) fn cull_unfound(&mut self, ratio: f64, min_visible: u32) -> usize {
-        let before = self.landmarks.len();
-        self.landmarks.retain(|_, lm| {
-            lm.visible < min_visible || lm.found as f64 >= ratio * lm.visible as f64
-        });
-        before - self.landmarks.len()
-    }
     /// Registers a keyframe pose and returns its id.
     pub(crate) fn new_keyframe_id(&mut self, r: Mat3, t: Vec3) -> usize {
         self.keyframe_poses.push((r, t));
@@ -265,38 +217,6 @@ mod tests {
         assert!(after < 0.25 * before, "error {before} m -> {after} m");
         assert_eq!(tr.landmarks[&id].obs.len(), 3);
         assert_eq!(tr.landmarks[&id].desc, vec![1.0; 4]);
-    }
-
-    /// A landmark is judged by its found ratio only once it projected into enough frames;
-    /// then one found in fewer than the ratio of them goes, one found often enough stays.
-    #[test]
-    fn landmarks_rarely_found_where_they_project_are_culled() {
-        let (mut tr, id, _) = short_baseline_landmark();
-        let other = tr.add_landmark(Vec3::new(-1.0, 0.0, 15.0), Vec::new(), &[0.0; 4]);
-        let project = |q: &Vec3| (F * q.x / q.z + 600.0, F * q.y / q.z + 180.0);
-        let pose = at(Vec3::zeros());
-        let found_other: std::collections::BTreeSet<usize> = [other].into();
-        for _ in 0..3 {
-            tr.count_visibility((&pose.0, &pose.1), (1200.0, 360.0), project, &found_other);
-        }
-        assert_eq!((tr.landmarks[&id].visible, tr.landmarks[&id].found), (3, 0));
-        assert_eq!(
-            tr.cull_unfound(0.25, 4),
-            0,
-            "three frames are too few to judge"
-        );
-        tr.count_visibility((&pose.0, &pose.1), (1200.0, 360.0), project, &found_other);
-        // behind the camera: neither visible nor found
-        let behind = at(Vec3::new(0.0, 0.0, 30.0));
-        tr.count_visibility(
-            (&behind.0, &behind.1),
-            (1200.0, 360.0),
-            project,
-            &found_other,
-        );
-        assert_eq!(tr.landmarks[&other].visible, 4);
-        assert_eq!(tr.cull_unfound(0.25, 4), 1);
-        assert!(!tr.landmarks.contains_key(&id) && tr.landmarks.contains_key(&other));
     }
 
     #[test]

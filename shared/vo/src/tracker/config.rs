@@ -101,12 +101,6 @@ pub struct TrackerConfig {
     /// starts a new map from the reference keyframe, whose pose is known, with itself as
     /// the second view; false: from itself, placed at the last tracked pose.
     pub reinitialise_on_reference: bool,
-    /// Landmark culling at each keyframe: a landmark that tracked frames found (as a pose
-    /// inlier) in fewer than this fraction of the frames it projected into is dropped, once
-    /// it projected into `cull_min_visible`; 0 disables (ORB-SLAM uses 0.25).
-    pub cull_found_ratio: f64,
-    /// Frames a landmark must have projected into before the found ratio judges it.
-    pub cull_min_visible: u32,
     /// Essential-matrix RANSAC.
     pub ransac: RansacConfig,
     /// PnP RANSAC.
@@ -142,8 +136,6 @@ impl Default for TrackerConfig {
             weak_gate_factor: 1.5,
             backfill_frames: 16,
             reinitialise_on_reference: true,
-            cull_found_ratio: 0.0,
-            cull_min_visible: 4,
             ransac: RansacConfig::default(),
             pnp: PnpConfig::default(),
         }

@@ -338,12 +338,6 @@ impl Tracker {
     /// memory stays flat on long runs; the rest form the local map that the search by
     /// projection can find again (after a pan, a stop, an occlusion).
     fn prune_map(&mut self) {
-        if self.cfg.cull_found_ratio > 0.0 {
-            let culled = self
-                .map
-                .cull_unfound(self.cfg.cull_found_ratio, self.cfg.cull_min_visible);
-            tracing::debug!(culled, "landmarks culled by their found ratio");
-        }
         let n = self.map.keyframe_poses.len();
         let keep_from = n.saturating_sub(self.cfg.local_map_keyframes.max(1));
         self.map

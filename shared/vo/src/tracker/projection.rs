@@ -97,7 +97,6 @@ impl Tracker {
             return None;
         }
         self.update_motion_model(&input, &fit);
-        self.count_visibility(cur, &matches, &fit);
         self.last_frame = Some(LastFrame::tracked(cur, &matches, &fit));
         let pose = Some((fit.r, fit.t));
         let counts = (found, tracked);

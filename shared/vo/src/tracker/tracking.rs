@@ -65,7 +65,6 @@ impl Tracker {
         };
         self.log_tracked(input, m, &matches, &first, &fit);
         self.update_motion_model(input, &fit);
-        self.count_visibility(&cur, &matches, &fit);
         let tracked = fit.tracked();
         if !self.needs_keyframe(&kf, tracked, self.frames_since_keyframe) {
             self.last_frame = Some(LastFrame::tracked(&cur, &matches, &fit));
@@ -312,26 +311,6 @@ impl Tracker {
     /// The frame's pose becomes the last pose; the motion since the last tracked one the
     /// constant-velocity model (after a relocalisation the gap spans failed frames, so the
     /// model starts again).
-    /// Counts the tracked frame for the landmarks' found ratio (`cull_found_ratio`): those
-    /// projecting into its image at its pose, and those among its inliers.
-    pub(super) fn count_visibility(&mut self, cur: &Features, lm: &LandmarkMatches, fit: &PoseFit) {
-        if self.cfg.cull_found_ratio <= 0.0 {
-            return;
-        }
-        let inliers = lm
-            .pairs
-            .iter()
-            .zip(&fit.inlier)
-            .filter(|(_, &ok)| ok)
-            .map(|(&(_, id), _)| id)
-            .collect();
-        let c = self.calib;
-        let project = |q: &Vec3| (c.fx * q.x / q.z + c.cx, c.fy * q.y / q.z + c.cy);
-        let size = (cur.image_size.0 as f64, cur.image_size.1 as f64);
-        self.map
-            .count_visibility((&fit.r, &fit.t), size, project, &inliers);
-    }
-
     pub(super) fn update_motion_model(&mut self, input: &FrameMeta, fit: &PoseFit) {
         let (r, t) = (fit.r, fit.t);
         if self.lost_streak > 0 {
