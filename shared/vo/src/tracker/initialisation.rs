@@ -126,44 +126,6 @@ impl Tracker {
         out
     }
 
-    /// A frame whose matches `m` reach the reference `kf` but do not agree with its map. A
-    /// blind frame goes to [`Tracker::unusable_reference`] (relocalisation); otherwise, with
-    /// `reinitialise_on_reference`, a new map starts from the reference keyframe, whose pose
-    /// is known, and the frame is tried as the second view of its two-view initialisation
-    /// at once (posed when it initialises, kept to be posed later when it waits for
-    /// parallax); without, the frame itself becomes the reference, at the last tracked pose.
-    pub(super) fn tracking_failed(
-        &mut self,
-        input: &FrameMeta,
-        kf: Keyframe,
-        cur: Features,
-        m: &Matches,
-    ) -> FrameOutput {
-        let blind = cur.len() < self.cfg.min_tracked;
-        if blind || !self.cfg.reinitialise_on_reference {
-            return self.unusable_reference(input, kf, cur, m.pairs.len(), TrackingState::Lost);
-        }
-        tracing::debug!(
-            frame = input.index,
-            reference = kf.frame,
-            matches = m.pairs.len(),
-            "tracking failed: a new map from the reference keyframe"
-        );
-        self.velocity = None;
-        self.lost_streak = 0;
-        self.map.landmarks.clear();
-        self.map.tracks.clear();
-        self.map.segment_start = self.map.keyframe_poses.len();
-        self.last_frame = None;
-        self.set_reference(kf.frame, kf.r, kf.t, kf.features);
-        self.frames_since_keyframe = 0;
-        let mut out = self.initialise(input, cur, Some(m));
-        if out.pose.is_none() {
-            out.state = TrackingState::Lost;
-        }
-        out
-    }
-
     /// A frame that does not initialise against the reference `kf` yet (too little
     /// parallax, no essential matrix, too few landmarks from it: `landmarks`): no pose, the
     /// reference stays, and the frame is kept to be posed once the map exists.

@@ -28,11 +28,13 @@
 //! exactly the same numbers.
 //!
 //! Where each part lives: the map it builds ([`crate::map`]), the settings ([`config`]), the
-//! per-frame types ([`frame`]), two-view initialisation ([`initialisation`]), tracking a
+//! per-frame types ([`frame`]), two-view initialisation ([`initialisation`]) and the frames
+//! seen meanwhile, posed once the map exists ([`initialising_frames`]), tracking a
 //! frame with matches and the keyframe decision ([`tracking`]), tracking one without
-//! ([`projection`]), matching by projection ([`map_search`]) and the local bundle
-//! adjustment ([`local_ba`]); this file holds the
-//! state machine between them (initialising, tracking, blind frames, starting over).
+//! ([`projection`]), matching by projection ([`map_search`]), what becomes of a frame that
+//! cannot be posed ([`recovery`]: the reference kept, relocalisation, a new map) and the
+//! local bundle adjustment ([`local_ba`]); this file holds the tracker's state, the
+//! keyframe insertion and the per-frame entry points between them.
 
 mod config;
 mod covisible_triangulation;
@@ -42,6 +44,7 @@ mod initialising_frames;
 mod local_ba;
 mod map_search;
 mod projection;
+mod recovery;
 mod tracking;
 
 pub use config::TrackerConfig;
@@ -348,87 +351,6 @@ impl Tracker {
         self.map
             .tracks
             .retain(|_, obs| obs.last().is_some_and(|(k, _)| *k >= newest));
-    }
-
-    /// This frame has no pose and the reference `kf` stays: not enough for the two-view
-    /// initialisation yet (`Initializing`), or a blind frame while tracking (`Lost`).
-    fn keep_reference(
-        &mut self,
-        input: &FrameMeta,
-        kf: Keyframe,
-        state: TrackingState,
-        keypoints: usize,
-        counts: (usize, usize),
-    ) -> FrameOutput {
-        let out = self.output(input, state, None, keypoints, counts, false);
-        self.keyframe = Some(kf);
-        out
-    }
-
-    /// A frame that could not use the reference `kf` (`matches` to it), reported as `state`:
-    /// `Initializing` while the reference waits to initialise, `Lost` when tracking against
-    /// it failed. A blind frame (fewer keypoints than tracking needs: black, washed out,
-    /// covered) says nothing about the reference, which stays: while initialising, and while
-    /// tracking for at most `relocalisation_frames` blind frames in a row, with its map, so
-    /// that the next frame relocalises on it at the map's scale. Any other frame starts over
-    /// from itself at the last known pose.
-    fn unusable_reference(
-        &mut self,
-        input: &FrameMeta,
-        kf: Keyframe,
-        cur: Features,
-        matches: usize,
-        state: TrackingState,
-    ) -> FrameOutput {
-        let blind = cur.len() < self.cfg.min_tracked;
-        let initialising = state == TrackingState::Initializing;
-        if blind && (initialising || self.lost_streak < self.cfg.relocalisation_frames) {
-            if !initialising {
-                self.lost_streak += 1;
-                tracing::debug!(
-                    frame = input.index,
-                    keypoints = cur.len(),
-                    streak = self.lost_streak,
-                    "blind frame: keeping the map to relocalise"
-                );
-            }
-            return self.keep_reference(input, kf, state, cur.len(), (matches, 0));
-        }
-        tracing::debug!(
-            frame = input.index,
-            reference = kf.frame,
-            matches,
-            ?state,
-            "starting over from this frame"
-        );
-        self.start_over(input, cur, matches, state)
-    }
-
-    /// Lost: re-initialise from this frame at the last known pose.
-    fn lost(&mut self, input: &FrameMeta, cur: Features, matches: usize) -> FrameOutput {
-        self.start_over(input, cur, matches, TrackingState::Lost)
-    }
-
-    /// Drops the map and makes this frame the reference at the last known pose, in a new
-    /// segment (the next frames initialise against it); the frame itself has no pose and is
-    /// reported in `state`.
-    fn start_over(
-        &mut self,
-        input: &FrameMeta,
-        cur: Features,
-        matches: usize,
-        state: TrackingState,
-    ) -> FrameOutput {
-        let out = self.output(input, state, None, cur.len(), (matches, 0), false);
-        let (r, t) = self.last_pose;
-        self.velocity = None;
-        self.lost_streak = 0;
-        self.map.landmarks.clear();
-        self.map.tracks.clear();
-        self.map.segment_start = self.map.keyframe_poses.len();
-        self.set_reference(input.index, r, t, cur);
-        self.frames_since_keyframe = 0;
-        out
     }
 
     /// Processes one frame: its features and their matches against [`Tracker::reference`]
