@@ -128,8 +128,8 @@ impl Sequence {
         frames: Option<usize>,
         camera: CameraModel,
     ) -> Result<Self, SynthError> {
-        let preset =
-            preset::preset(name, seed).ok_or_else(|| SynthError::UnknownPreset(name.into()))?;
+        let preset = preset::preset_for(name, seed, frames)
+            .ok_or_else(|| SynthError::UnknownPreset(name.into()))?;
         let frames = frames.unwrap_or(preset.default_frames);
         if frames < 2 {
             return Err(SynthError::Invalid(format!(

@@ -92,16 +92,46 @@ pub struct Preset {
     pub photometry: Photometry,
 }
 
-/// Builds preset `name` for `seed`; `None` for an unknown name.
-pub fn preset(name: &str, seed: u64) -> Option<Preset> {
+/// Length of the street presets' road (metres) unless more frames need a longer one.
+const STREET_M: f64 = 500.0;
+
+/// Road beyond the last frame's position on a lengthened street (metres), so that its end
+/// is not in view.
+const STREET_AHEAD_M: f64 = 150.0;
+
+/// Builds preset `name` for `seed`, for `frames` frames when given: the straight streets
+/// (`dynamic`, `lighting`, `stop-and-pan`) are 500 m long, or long enough for the frames
+/// asked for (a long drive); the other roads are what they are. `None` for an unknown name.
+pub fn preset_for(name: &str, seed: u64, frames: Option<usize>) -> Option<Preset> {
+    let p = preset(name, seed, STREET_M)?;
+    let closed = p.scene.path.is_closed();
+    let needed = frames.filter(|_| !closed && name != "highway").map(|n| {
+        p.drive
+            .arc_length(n.saturating_sub(1) as f64 / crate::RATE_HZ)
+            + STREET_AHEAD_M
+    });
+    match needed {
+        Some(length) if length > STREET_M => preset(name, seed, length),
+        _ => Some(p),
+    }
+}
+
+/// Preset `name` for `seed`, a street preset's road `street_m` metres long.
+fn preset(name: &str, seed: u64, street_m: f64) -> Option<Preset> {
     match name {
         "urban-loop" => Some(urban_loop(seed)),
         "highway" => Some(highway(seed)),
-        "dynamic" => Some(street(seed, "dynamic", true, Photometry::Steady)),
-        "lighting" => Some(street(seed, "lighting", false, Photometry::Changing)),
+        "dynamic" => Some(street(seed, "dynamic", true, Photometry::Steady, street_m)),
+        "lighting" => Some(street(
+            seed,
+            "lighting",
+            false,
+            Photometry::Changing,
+            street_m,
+        )),
         "stop-and-pan" => {
             // 5 s driving, a 5 s stop panning 35 degrees each way, then driving again.
-            let mut p = street(seed, "stop-and-pan", false, Photometry::Steady);
+            let mut p = street(seed, "stop-and-pan", false, Photometry::Steady, street_m);
             p.drive.pan = Some(Pan {
                 start: 5.0,
                 duration: 5.0,
@@ -440,10 +470,17 @@ fn highway(seed: u64) -> Preset {
     }
 }
 
-/// A straight city street, with busy traffic (`dynamic`) or with changing exposure.
-fn street(seed: u64, name: &'static str, traffic: bool, photometry: Photometry) -> Preset {
+/// A straight city street `length` metres long, with busy traffic (`dynamic`) or with
+/// changing exposure.
+fn street(
+    seed: u64,
+    name: &'static str,
+    traffic: bool,
+    photometry: Photometry,
+    length: f64,
+) -> Preset {
     let mut rng = Rng::new(seed, if traffic { 3 } else { 4 });
-    let path = PathBuilder::new(V2::zeros(), 0.0).straight(500.0).open();
+    let path = PathBuilder::new(V2::zeros(), 0.0).straight(length).open();
     let road = RoadStyle {
         half_width: 7.0,
         pavement: 3.5,
@@ -453,7 +490,7 @@ fn street(seed: u64, name: &'static str, traffic: bool, photometry: Photometry) 
         asphalt: (85.0, 35.0),
         verge: (120.0, 40.0),
     };
-    let mut statics = vec![ground_quad(600.0)];
+    let mut statics = vec![ground_quad(length + 100.0)];
     buildings(&mut statics, &path, 1.0, 10.5, 0.0, (10.0, 16.0), &mut rng);
     buildings(&mut statics, &path, -1.0, 10.5, 0.0, (10.0, 16.0), &mut rng);
     street_furniture(&mut statics, &path, &road, !traffic, &mut rng);

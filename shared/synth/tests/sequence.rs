@@ -152,17 +152,26 @@ fn bad_requests_are_refused_with_the_reason() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("--frames"), "{e}");
-    // More frames than the street is long (500 m at 8 m/s: the car would stand still at its
-    // end); the loop takes any number.
-    let e = Sequence::new("dynamic", 1, Some(3000), camera(0.2))
+    // More frames than the highway is long (1.41 km: the car would stand still at its end);
+    // the loop takes any number, and a street is built as long as the frames need.
+    let e = Sequence::new("highway", 1, Some(3000), camera(0.2))
         .unwrap_err()
         .to_string();
     assert!(
-        e.contains("--frames 3000") && e.contains("dynamic") && e.contains("at most"),
+        e.contains("--frames 3000") && e.contains("highway") && e.contains("at most"),
         "{e}"
     );
-    assert!(Sequence::new("dynamic", 1, Some(500), camera(0.2)).is_ok());
     assert!(Sequence::new("urban-loop", 1, Some(3000), camera(0.2)).is_ok());
+    for (frames, metres) in [(500, 500.0), (3000, 2400.0)] {
+        let long = Sequence::new("lighting", 1, Some(frames), camera(0.2)).unwrap();
+        let (road, drive) = (&long.preset.scene.path, &long.preset.drive);
+        let last = drive.arc_length(long.time(frames - 1));
+        assert!(
+            road.length() >= metres && road.length() >= last + 100.0,
+            "{frames} frames: a {:.0} m street for a drive to {last:.0} m",
+            road.length()
+        );
+    }
     // An output root that is a file.
     let f = tempfile::NamedTempFile::new().unwrap();
     let seq = Sequence::new("highway", 1, Some(2), camera(0.2)).unwrap();
