@@ -39,6 +39,8 @@ def main():
         with open(args.report) as f:
             detail = json.load(f)["frames_detail"]
         ok = {d["index"] for d in detail if d.get("pose") is not None}
+        # frames seen while initialising, posed later with the frame that initialised
+        ok |= {late["index"] for d in detail for late in d.get("backfilled", [])}
         posed = [i for i in posed if i in ok]
     steps = list(zip(posed, posed[1:]))
     dist = math.dist
