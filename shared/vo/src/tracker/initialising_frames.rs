@@ -8,7 +8,7 @@
 //! a loss is not among them: its pose is the assumed last pose the new map starts from.
 
 use super::frame::{bearing, pose_array};
-use super::tracking::LandmarkMatches;
+use super::tracking::{LandmarkMatches, PoseFit};
 use super::{FrameMeta, LatePose, Tracker};
 use std::collections::{HashMap, VecDeque};
 use supermvo_geometry::Vec3;
@@ -59,24 +59,8 @@ impl Tracker {
         let landmark_of: HashMap<usize, usize> = reference_landmarks.iter().copied().collect();
         let mut posed = Vec::new();
         for f in frames {
-            let (mut pairs, mut points, mut bearings) = (Vec::new(), Vec::new(), Vec::new());
-            for (k, (a, b)) in f.pairs.iter().enumerate() {
-                if let Some(lm) = landmark_of.get(a).and_then(|id| self.map.landmarks.get(id)) {
-                    pairs.push((k, landmark_of[a]));
-                    points.push(lm.p);
-                    bearings.push(*b);
-                }
-            }
-            let lm = LandmarkMatches {
-                from_keyframe: pairs.len(),
-                pairs,
-                points,
-                bearings,
-            };
-            let (est, pnp) = self.pnp_with_weak_gate(&lm);
-            let fit = est
-                .filter(|e| e.inlier_count() >= self.cfg.min_tracked)
-                .and_then(|e| self.refine_pose(&lm, (&e, &pnp)));
+            let lm = self.initialising_landmark_matches(&f, &landmark_of);
+            let fit = self.pose_on_landmarks(&lm);
             tracing::debug!(
                 frame = f.meta.index,
                 landmark_matches = lm.pairs.len(),
@@ -92,5 +76,40 @@ impl Tracker {
             }
         }
         posed
+    }
+
+    /// A kept frame's matches that reach the new map, `landmark_of` a reference keypoint's
+    /// landmark (the frame's pairs are numbered by their position in its kept matches).
+    fn initialising_landmark_matches(
+        &self,
+        f: &InitialisingFrame,
+        landmark_of: &HashMap<usize, usize>,
+    ) -> LandmarkMatches {
+        let (mut pairs, mut points, mut bearings) = (Vec::new(), Vec::new(), Vec::new());
+        for (k, (a, b)) in f.pairs.iter().enumerate() {
+            let Some((&id, lm)) = landmark_of
+                .get(a)
+                .and_then(|id| self.map.landmarks.get(id).map(|lm| (id, lm)))
+            else {
+                continue;
+            };
+            pairs.push((k, id));
+            points.push(lm.p);
+            bearings.push(*b);
+        }
+        LandmarkMatches {
+            from_keyframe: pairs.len(),
+            pairs,
+            points,
+            bearings,
+        }
+    }
+
+    /// The pose a tracked frame would get from these landmark matches: PnP RANSAC (the gate
+    /// widened for a weak frame), then the refinement; `None` below `min_tracked` inliers.
+    fn pose_on_landmarks(&self, lm: &LandmarkMatches) -> Option<PoseFit> {
+        let (est, pnp) = self.pnp_with_weak_gate(lm);
+        est.filter(|e| e.inlier_count() >= self.cfg.min_tracked)
+            .and_then(|e| self.refine_pose(lm, (&e, &pnp)))
     }
 }
