@@ -238,6 +238,14 @@ pub struct PoseMsg {
     pub backfilled: [BackfilledPose; MAX_BACKFILLED],
 }
 
+impl PoseMsg {
+    /// The earlier frames this frame posed: the `backfilled_count` entries in use.
+    pub fn backfilled_poses(&self) -> &[BackfilledPose] {
+        let n = (self.backfilled_count as usize).min(MAX_BACKFILLED);
+        &self.backfilled[..n]
+    }
+}
+
 /// Most earlier frames one [`PoseMsg`] poses (the tracker's `pipeline.backfill_frames` is at
 /// most this).
 pub const MAX_BACKFILLED: usize = 16;

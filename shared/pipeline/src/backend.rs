@@ -358,7 +358,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
                 continue;
             }
             rec.add(record(&h, &p))?;
-            for b in p.backfilled.iter().take(p.backfilled_count as usize) {
+            for b in p.backfilled_poses() {
                 rec.backfill(b.seq, b.t_world_cam, p.scale)?;
             }
             changed = true;

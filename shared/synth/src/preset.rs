@@ -104,13 +104,13 @@ const STREET_AHEAD_M: f64 = 150.0;
 /// asked for (a long drive); the other roads are what they are. `None` for an unknown name.
 pub fn preset_for(name: &str, seed: u64, frames: Option<usize>) -> Option<Preset> {
     let p = preset(name, seed, STREET_M)?;
-    let closed = p.scene.path.is_closed();
-    let needed = frames.filter(|_| !closed && name != "highway").map(|n| {
+    let needed = frames.map(|n| {
         p.drive
             .arc_length(n.saturating_sub(1) as f64 / crate::RATE_HZ)
             + STREET_AHEAD_M
     });
     match needed {
+        // only the streets take the length; the other roads come back as they are
         Some(length) if length > STREET_M => preset(name, seed, length),
         _ => Some(p),
     }

@@ -370,8 +370,7 @@ fn record_viewed(rec: &mut Recorder, f: &supermvo_pipeline::viewer::ViewedFrame)
             pixels: px,
         }),
     });
-    let late = p.backfilled.iter().take(p.backfilled_count as usize);
-    for b in late {
+    for b in p.backfilled_poses() {
         rec.late_pose(b.seq, &b.t_world_cam);
     }
     let (stage_ms, capture_to_pose_ms) = f.stage_ms();

@@ -84,8 +84,7 @@ impl Tracker {
         self.make_keyframe(input, kf, cur, m, (&matches, &fit))
     }
 
-    /// The matches to the reference keyframe whose keyframe keypoint carries a landmark (one
-    /// still in the map: culling may have dropped it).
+    /// The matches to the reference keyframe whose keyframe keypoint carries a landmark.
     fn keyframe_landmark_matches(
         &self,
         kf: &Keyframe,
@@ -96,7 +95,6 @@ impl Tracker {
             .pairs
             .iter()
             .filter_map(|&(a, b)| kf.landmark[a].map(|id| (b, id)))
-            .filter(|(_, id)| self.map.landmarks.contains_key(id))
             .collect();
         self.landmark_matches(pairs, cur)
     }
