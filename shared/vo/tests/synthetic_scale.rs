@@ -61,6 +61,29 @@ struct Drive {
     missed: f64,
     /// 0.3 m per frame over the first 10 frames (a car pulling away), then 1 m per frame.
     slow_start: bool,
+    /// Frames of the run (0: `FRAMES`); `straight`: no turn, a straight road throughout.
+    frames: usize,
+    straight: bool,
+    /// Every keypoint with the same Gaussian noise, without the heavy tail.
+    gaussian: bool,
+}
+
+impl Drive {
+    fn frames(&self) -> usize {
+        if self.frames == 0 {
+            FRAMES
+        } else {
+            self.frames
+        }
+    }
+    /// Frame at which the turn starts.
+    fn turn_at(&self) -> usize {
+        if self.straight {
+            usize::MAX - TURN
+        } else {
+            STRAIGHT
+        }
+    }
 }
 
 /// Camera centre and heading (yaw about the camera's y axis, radians) at frame `k`.
@@ -74,7 +97,7 @@ fn path_axle(k: usize, drive: Drive) -> (Vec3, f64) {
     let mut yaw = 0.0f64;
     let rate = std::f64::consts::FRAC_PI_2 / TURN as f64;
     for i in 0..k {
-        if (STRAIGHT..STRAIGHT + TURN).contains(&i) {
+        if (drive.turn_at()..drive.turn_at() + TURN).contains(&i) {
             yaw += rate;
         }
         c += speed(i, drive) * Vec3::new(yaw.sin(), 0.0, yaw.cos());
@@ -91,7 +114,7 @@ fn speed(i: usize, drive: Drive) -> f64 {
         return 1.0;
     }
     let slow = 0.3;
-    let (a, b) = (STRAIGHT as f64, (STRAIGHT + TURN) as f64);
+    let (a, b) = (drive.turn_at() as f64, (drive.turn_at() + TURN) as f64);
     let i = i as f64;
     if i < a - 10.0 {
         1.0
@@ -119,7 +142,7 @@ struct Scene {
 /// points down) to 3.35 m above the camera.
 fn scene(rng: &mut Rng, drive: Drive) -> Scene {
     let mut points = Vec::new();
-    for k in 0..FRAMES + 80 {
+    for k in 0..drive.frames() + 80 {
         let (c, yaw) = path_axle(k, drive);
         let r = rot_y(yaw);
         for _ in 0..40 {
@@ -167,7 +190,7 @@ fn observe(
         if q.z < 1.0 || q.z > 80.0 {
             continue;
         }
-        let sigma = if rng.u() < 0.3 {
+        let sigma = if rng.u() < 0.3 && !drive.gaussian {
             4.0 * noise_px
         } else {
             noise_px
@@ -230,7 +253,7 @@ fn run_counted(
     let mut tracker = Tracker::new(calib(), cfg);
     let mut ids_of: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
     let mut out = Vec::new();
-    for k in 0..FRAMES {
+    for k in 0..drive.frames() {
         let (mut f, mut ids) = observe(&s, k, noise_px, drive, &mut rng);
         if (drive.blind.0..drive.blind.1).contains(&k) {
             (f.keypoints, f.scores, f.descriptors, ids) = Default::default();
@@ -604,5 +627,45 @@ fn frames_seen_while_initialising_are_posed_once_the_map_exists() {
         };
         let (traj0, _, _, none) = run_counted(scene, 0.5, 0.1, off, drive);
         assert!(none.is_empty() && traj0[1].0.is_none(), "scene {scene}");
+    }
+}
+
+/// Estimated / true distance over consecutive `step`-frame stretches, from 10 frames after
+/// the first posed frame (NaN where either end has no pose).
+fn scale_over(traj: &[(Option<Vec3>, Vec3)], step: usize) -> Vec<f64> {
+    let first = traj.iter().position(|t| t.0.is_some()).unwrap_or(0) + 10;
+    (first..traj.len().saturating_sub(step))
+        .step_by(step)
+        .map(|a| match (traj[a].0, traj[a + step].0) {
+            (Some(ea), Some(eb)) => (eb - ea).norm() / (traj[a + step].1 - traj[a].1).norm(),
+            _ => f64::NAN,
+        })
+        .collect()
+}
+
+/// A long straight road (400 frames, 400 m) with 1 px Gaussian keypoint noise, 30 % of the
+/// true matches missed and 10 % wrong ones: the scale of every 50-frame stretch stays
+/// within 5 % of the first stretch's, on each of two scenes, every frame posed after the
+/// initialisation. (Measured over 600 frames: down by 1.6 and 2.0 %, steadily. The same
+/// drive with the heavy tail of the other tests, 30 % of the keypoints at 4 px, does not
+/// hold: docs/decisions/2026-12-02-scale-with-heavy-tailed-keypoint-noise.md.)
+#[test]
+fn the_scale_holds_on_a_long_straight_road_with_gaussian_noise() {
+    let drive = Drive {
+        frames: 400,
+        straight: true,
+        gaussian: true,
+        missed: 0.3,
+        ..Drive::default()
+    };
+    for seed in 0..2 {
+        let traj = run_with(seed, 1.0, 0.1, TrackerConfig::default(), drive);
+        let unposed = traj.iter().rposition(|t| t.0.is_none()).unwrap_or(0);
+        assert!(unposed <= 10, "scene {seed}: frame {unposed} has no pose");
+        let steps = scale_over(&traj, 50);
+        println!("scene {seed}, scale per 50 frames: {steps:.3?}");
+        assert!(steps.len() >= 6, "scene {seed}: {} stretches", steps.len());
+        let worst = worst_change(&steps);
+        assert!(worst < 0.05, "scene {seed}: scale changed by {worst:.4}");
     }
 }
