@@ -72,6 +72,20 @@ pub enum Device {
     Cuda,
 }
 
+/// How frames of a camera with lens distortion reach the pinhole model the tracker uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Undistort {
+    /// Keypoints are found on the frames as recorded and then moved to where the pinhole
+    /// camera sees them (as ORB-SLAM3 and stella_vslam do): nothing is resampled, and the
+    /// whole field of view is kept.
+    #[default]
+    Keypoints,
+    /// Each frame is remapped to the pinhole camera before the keypoints are found (a
+    /// second resampling of the image; the edges lose detail).
+    Images,
+}
+
 /// Keypoint extractor and matcher.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Frontend {
@@ -178,6 +192,9 @@ pub struct PipelineConfig {
     /// `sensor.yaml`, and is needed by TUM and image-folder sequences without `camera.yaml`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub camera: Option<std::path::PathBuf>,
+    /// With lens distortion: "keypoints" (undistorted after extraction, the default) or
+    /// "images" (frames remapped before it).
+    pub undistort: Undistort,
     /// Run the matcher on every frame against the reference keyframe (the default). false:
     /// only for initialisation, new keyframes and frames that projection does not track;
     /// the other frames are tracked by projecting the map (1.7-2x faster on the full-rate
@@ -240,6 +257,7 @@ impl Default for PipelineConfig {
             backfill_frames: 16,
             reinitialise_on_reference: true,
             camera: None,
+            undistort: Undistort::Keypoints,
             match_every_frame: true,
             max_restarts: 5,
             restart_backoff_ms: 100,

@@ -104,6 +104,20 @@ pub struct Camera {
 }
 
 impl Camera {
+    /// Where pixel `(u, v)` of the distorted image lies in the pinhole camera of the same
+    /// intrinsics (the camera [`Undistorter`] remaps frames to): `None` where the lens
+    /// model does not invert (beyond a fisheye's 90 degrees, or where the fixed-point
+    /// iteration does not reproduce the pixel within 1e-3 px).
+    pub fn undistort_pixel(&self, u: f64, v: f64) -> Option<(f64, f64)> {
+        let k = &self.calib;
+        let (xd, yd) = ((u - k.cx) / k.fx, (v - k.cy) / k.fy);
+        let (x, y) = self.distortion.undistort(xd, yd);
+        let (rx, ry) = self.distortion.distort(x, y);
+        let err_px = ((rx - xd) * k.fx).hypot((ry - yd) * k.fy);
+        (x.is_finite() && y.is_finite() && err_px < 1e-3)
+            .then_some((k.fx * x + k.cx, k.fy * y + k.cy))
+    }
+
     /// Reads a camera file in the ORB-SLAM3 / OpenCV YAML style or EuRoC's `sensor.yaml`.
     pub fn read(path: &Path) -> Result<Self, DatasetError> {
         let text = std::fs::read(path).map_err(|e| DatasetError::io(path, e))?;
@@ -436,6 +450,47 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// A pixel of the distorted image goes to where the pinhole camera of the same
+    /// intrinsics sees the same ray: distorting it back lands on the pixel again, and the
+    /// remap of whole frames takes that pixel's intensity from the same place.
+    #[test]
+    fn keypoints_undistort_to_where_the_remapped_frame_shows_them() {
+        let camera = Camera {
+            calib: Calibration {
+                fx: 458.654,
+                fy: 457.296,
+                cx: 367.215,
+                cy: 248.375,
+            },
+            distortion: Distortion::RadTan([-0.2834, 0.0740, 0.0002, 1.8e-5, 0.0]),
+            size: Some((752, 480)),
+        };
+        let remap = Undistorter::new(&camera, 752, 480).unwrap();
+        let sources: Vec<Option<(f32, f32)>> = remap.0.sources().collect();
+        for (u, v) in [(100.0, 80.0), (367.0, 248.0), (700.0, 450.0), (20.0, 400.0)] {
+            let (pu, pv) = camera.undistort_pixel(u, v).unwrap();
+            // the remapped frame's pixel nearest to (pu, pv) shows the input near (u, v)
+            let (iu, iv) = (pu.round(), pv.round());
+            if iu < 0.0 || iv < 0.0 || iu >= 752.0 || iv >= 480.0 {
+                continue;
+            }
+            let (su, sv) = sources[iv as usize * 752 + iu as usize].unwrap();
+            assert!(
+                (su as f64 - u).abs() < 1.0 && (sv as f64 - v).abs() < 1.0,
+                "({u}, {v}) -> ({pu:.2}, {pv:.2}) shows ({su}, {sv})"
+            );
+        }
+        // the edge moves outwards under barrel distortion
+        let (pu, _) = camera.undistort_pixel(0.0, 248.375).unwrap();
+        assert!(pu < -10.0, "{pu}");
+        // a pinhole camera leaves pixels where they are
+        let pinhole = Camera {
+            distortion: Distortion::None,
+            ..camera
+        };
+        assert_eq!(pinhole.undistort_pixel(12.5, 40.0), Some((12.5, 40.0)));
     }
 
     #[test]

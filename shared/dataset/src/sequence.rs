@@ -57,6 +57,11 @@ pub struct Sequence {
     pub layout: Layout,
     /// The remap of distorted frames, when the camera has distortion.
     undistort: Option<Arc<Undistorter>>,
+    /// The camera, when it has distortion.
+    lens: Option<Camera>,
+    /// Whether [`Sequence::load_frame`] remaps distorted frames (the default) or returns
+    /// them as recorded, for keypoints undistorted after extraction.
+    remap: bool,
     /// The decoder of a video.
     video: Option<Arc<Video>>,
 }
@@ -169,6 +174,8 @@ impl Sequence {
             images: Vec::new(),
             layout: Layout::Video,
             undistort,
+            lens: (camera.distortion != crate::camera::Distortion::None).then_some(camera),
+            remap: true,
             video: Some(Arc::new(video)),
         })
     }
@@ -213,15 +220,18 @@ impl Sequence {
             images,
             layout,
             undistort,
+            lens: (camera.distortion != crate::camera::Distortion::None).then_some(*camera),
+            remap: true,
             video: None,
         })
     }
 
     /// Frame `i`, remapped to the pinhole camera [`Sequence::calib`] when the lens distorts.
     pub fn load_frame(&self, i: usize) -> Result<GrayImage, DatasetError> {
+        let remap = self.undistort.as_ref().filter(|_| self.remap);
         if let Some(v) = &self.video {
             let img = v.frame(i)?;
-            return match &self.undistort {
+            return match remap {
                 Some(u) => u.apply(&img, &self.dir),
                 None => Ok(img),
             };
@@ -231,10 +241,32 @@ impl Sequence {
             .get(i)
             .ok_or_else(|| DatasetError::invalid(&self.dir, format!("no frame {i}")))?;
         let img = GrayImage::load(path)?;
-        match &self.undistort {
+        match remap {
             Some(u) => u.apply(&img, path),
             None => Ok(img),
         }
+    }
+
+    /// The camera of a lens with distortion (`None` for a pinhole camera): what keypoints
+    /// found on frames that were not remapped are undistorted with
+    /// ([`Camera::undistort_pixel`]).
+    pub fn lens(&self) -> Option<&Camera> {
+        self.lens.as_ref()
+    }
+
+    /// A frame as [`Sequence::load_frame`] gave it, remapped to the pinhole camera its
+    /// undistorted keypoints live in, for views that draw them on it; `None` when the frames
+    /// already load as pinhole images (no lens, or remapped as they load).
+    pub fn pinhole_view(&self, img: &GrayImage) -> Option<GrayImage> {
+        let u = self.undistort.as_ref().filter(|_| !self.remap)?;
+        u.apply(img, &self.dir).ok()
+    }
+
+    /// Whether [`Sequence::load_frame`] remaps distorted frames to the pinhole camera (true,
+    /// the default) or returns them as recorded (false: the keypoints found on them are
+    /// undistorted instead, which resamples nothing).
+    pub fn set_remap_frames(&mut self, remap: bool) {
+        self.remap = remap;
     }
 
     /// Opens a KITTI sequence `dir` (a `sequences/NN` directory), using `image_0` (or
@@ -280,6 +312,8 @@ impl Sequence {
             images,
             layout: Layout::Kitti,
             undistort: None,
+            lens: None,
+            remap: true,
             video: None,
         })
     }

@@ -37,6 +37,27 @@ impl Features {
     pub fn descriptor(&self, i: usize) -> &[f32] {
         &self.descriptors[i * self.dim..(i + 1) * self.dim]
     }
+
+    /// Moves every keypoint to `to(x, y)`, dropping (with its score and descriptor) each
+    /// one for which it gives `None`; the order of the rest is kept.
+    pub fn map_keypoints(&mut self, to: impl Fn(f32, f32) -> Option<[f32; 2]>) {
+        let dim = self.dim;
+        let mut kept = 0;
+        for i in 0..self.keypoints.len() {
+            let [x, y] = self.keypoints[i];
+            let Some(p) = to(x, y) else {
+                continue;
+            };
+            self.keypoints[kept] = p;
+            self.scores[kept] = self.scores[i];
+            self.descriptors
+                .copy_within(i * dim..(i + 1) * dim, kept * dim);
+            kept += 1;
+        }
+        self.keypoints.truncate(kept);
+        self.scores.truncate(kept);
+        self.descriptors.truncate(kept * dim);
+    }
 }
 
 /// Normalised distance between two descriptors of one front end, in [0, 1]: `1 - cos` for
@@ -102,5 +123,26 @@ impl FrameView {
                 Some([p[0], p[1], q[0], q[1]])
             })
             .collect();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mapping_keypoints_drops_the_unmapped_with_their_scores_and_descriptors() {
+        let mut f = Features {
+            keypoints: vec![[1.0, 1.0], [2.0, 2.0], [3.0, 3.0]],
+            scores: vec![0.9, 0.8, 0.7],
+            descriptors: vec![1.0, 0.0, 0.0, 1.0, 0.6, 0.8],
+            dim: 2,
+            image_size: (10, 10),
+        };
+        f.map_keypoints(|x, y| (x != 2.0).then_some([x + 0.5, y * 2.0]));
+        assert_eq!(f.keypoints, vec![[1.5, 2.0], [3.5, 6.0]]);
+        assert_eq!(f.scores, vec![0.9, 0.7]);
+        assert_eq!(f.descriptors, vec![1.0, 0.0, 0.6, 0.8]);
+        assert_eq!(f.len(), 2);
     }
 }

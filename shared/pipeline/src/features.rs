@@ -4,14 +4,14 @@
 use crate::common::{send_slice, stamp, StageArgs, StageContext};
 use crate::inbox::Inbox;
 use anyhow::Result;
-use supermvo_config::{Frontend, PipelineConfig};
-use supermvo_dataset::GrayImage;
+use supermvo_config::{Frontend, PipelineConfig, Undistort};
+use supermvo_dataset::{Camera, GrayImage, Sequence};
 use supermvo_inference::aliked::{Aliked, AlikedConfig};
 use supermvo_inference::models;
 use supermvo_inference::orb::{Orb, OrbConfig};
 use supermvo_inference::superpoint::{SuperPoint, SuperPointConfig};
 use supermvo_inference::xfeat::{XFeat, XFeatConfig};
-use supermvo_inference::Extractor;
+use supermvo_inference::{Extractor, Features, InferenceError};
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
 use supermvo_messages::iceoryx2::prelude::*;
 use supermvo_messages::{now_ns, FeatureLayout, MessageError, StageKind, Status, Topic};
@@ -58,10 +58,62 @@ pub fn extractor(cfg: &PipelineConfig) -> Result<Box<dyn Extractor + Send>> {
 }
 
 /// Runs one features worker until SIGTERM.
+/// An extractor whose keypoints, found on frames as a camera with lens distortion recorded
+/// them, are moved to where the pinhole camera of the same intrinsics sees them
+/// ([`Camera::undistort_pixel`]); keypoints the lens model cannot invert are dropped.
+pub struct UndistortedKeypoints<E> {
+    inner: E,
+    lens: Camera,
+}
+
+impl<E> std::fmt::Debug for UndistortedKeypoints<E> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "UndistortedKeypoints({:?})", self.lens)
+    }
+}
+
+impl<E: Extractor> Extractor for UndistortedKeypoints<E> {
+    fn extract(&mut self, image: &GrayImage) -> Result<Features, InferenceError> {
+        let mut f = self.inner.extract(image)?;
+        let lens = &self.lens;
+        f.map_keypoints(|x, y| {
+            lens.undistort_pixel(f64::from(x), f64::from(y))
+                .map(|(u, v)| [u as f32, v as f32])
+        });
+        Ok(f)
+    }
+}
+
+/// Sets `seq` up for the configured `undistort` and says whether keypoints must be
+/// undistorted: for a camera with lens distortion and `undistort = "keypoints"`, frames load
+/// as recorded and the lens is returned (wrap the extractor with [`with_lens`]); with
+/// `"images"` frames are remapped as they load; a pinhole camera needs neither.
+pub fn keypoint_lens(cfg: &PipelineConfig, seq: &mut Sequence) -> Option<Camera> {
+    let lens = seq.lens().copied()?;
+    let keypoints = cfg.undistort == Undistort::Keypoints;
+    seq.set_remap_frames(!keypoints);
+    keypoints.then_some(lens)
+}
+
+/// `extractor`, its keypoints undistorted with `lens` when there is one.
+pub fn with_lens(
+    extractor: Box<dyn Extractor + Send>,
+    lens: Option<Camera>,
+) -> Box<dyn Extractor + Send> {
+    match lens {
+        Some(lens) => Box::new(UndistortedKeypoints {
+            inner: extractor,
+            lens,
+        }),
+        None => extractor,
+    }
+}
+
 pub fn run(args: &StageArgs) -> Result<()> {
     let cfg = args.load_config()?.pipeline;
     let workers = cfg.features_workers as u64;
-    let mut extractor = extractor(&cfg)?;
+    let mut seq = Sequence::open_with_camera(&args.seq, cfg.camera.as_deref())?;
+    let mut extractor = with_lens(extractor(&cfg)?, keypoint_lens(&cfg, &mut seq));
     let mut ctx = StageContext::new(StageKind::Features, args.worker, &cfg)?;
     let frames = ctx.slice_subscriber::<u8>(Topic::Frames)?;
     let publisher = ctx

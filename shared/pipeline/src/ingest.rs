@@ -69,7 +69,9 @@ impl Replay {
 /// Runs the ingest stage until SIGTERM.
 pub fn run(args: &StageArgs) -> Result<()> {
     let cfg = args.load_config()?.pipeline;
-    let seq = Sequence::open_with_camera(&args.seq, cfg.camera.as_deref())?;
+    let mut seq = Sequence::open_with_camera(&args.seq, cfg.camera.as_deref())?;
+    // the features stage undistorts keypoints instead when so configured
+    crate::features::keypoint_lens(&cfg, &mut seq);
     let replay = Replay::new(&seq, cfg.max_frames, cfg.loops);
     if replay.frames == 0 {
         bail!("{}: no frames", seq.dir.display());
@@ -221,7 +223,11 @@ fn publish_frame(
     h.height = image.height as u32;
     stamp(&mut h, StageKind::Ingest);
     send_slice(p, h, &image.data)?;
-    views.publish(h, &image.data);
+    if views.listening() {
+        // viewers draw the undistorted keypoints: show them the pinhole image
+        let shown = seq.pinhole_view(&image);
+        views.publish(h, &shown.as_ref().unwrap_or(&image).data);
+    }
     Ok(h)
 }
 

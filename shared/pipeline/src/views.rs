@@ -57,6 +57,11 @@ impl ImageViews {
         Ok(Self { service, publisher })
     }
 
+    /// Whether a viewer listens.
+    pub fn listening(&self) -> bool {
+        listening(&self.service)
+    }
+
     /// Publishes the image of frame `h` when a viewer listens.
     pub fn publish(&self, h: FrameHeader, pixels: &[u8]) {
         if !listening(&self.service) {

@@ -7,7 +7,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use std::path::{Path, PathBuf};
 use supermvo_config::{Config, IngestMode};
-use supermvo_dataset::{GrayImage, Sequence, Trajectory};
+use supermvo_dataset::{Camera, GrayImage, Sequence, Trajectory};
 use supermvo_eval::{evaluate, EvalOptions};
 use supermvo_geometry::AlignmentKind;
 use supermvo_pipeline::backend::{read_records, with_corrections, write_trajectories};
@@ -198,7 +198,8 @@ fn check_calibration(seq: &Sequence) -> Result<GrayImage> {
 /// Runs `supermvo run`.
 pub fn run(args: &RunArgs) -> Result<()> {
     let cfg = args.config()?;
-    let seq = Sequence::open_with_camera(&args.seq_dir, cfg.pipeline.camera.as_deref())?;
+    let mut seq = Sequence::open_with_camera(&args.seq_dir, cfg.pipeline.camera.as_deref())?;
+    let lens = features::keypoint_lens(&cfg.pipeline, &mut seq);
     check_calibration(&seq)?;
     let n = match cfg.pipeline.max_frames {
         0 => seq.len(),
@@ -208,7 +209,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
         .with_context(|| format!("creating {}", args.out.display()))?;
     clear_previous_run(&args.out)?;
     let (traj, mut report, interrupted) = match args.mode {
-        Mode::Inprocess => run_inprocess(args, &cfg, &seq, n)?,
+        Mode::Inprocess => run_inprocess(args, &cfg, (&seq, lens), n)?,
         Mode::Multiprocess => run_multiprocess(args, &cfg, &seq)?,
     };
     let est = traj.poses.len();
@@ -367,7 +368,7 @@ fn network_cache((extractor, matcher): Networks, p: &supermvo_config::PipelineCo
 fn run_inprocess(
     args: &RunArgs,
     cfg: &Config,
-    seq: &Sequence,
+    (seq, lens): (&Sequence, Option<Camera>),
     n: usize,
 ) -> Result<(Trajectory, serde_json::Value, bool)> {
     let p = &cfg.pipeline;
@@ -380,6 +381,7 @@ fn run_inprocess(
         None => None,
     };
     let (extractor, matcher) = network_cache((features::extractor(p)?, matching::matcher(p)?), p);
+    let extractor = features::with_lens(extractor, lens);
     let mut pipeline = VoPipeline::new(extractor, matcher, tracker, loops);
     if recording.is_some() {
         pipeline = pipeline.keep_views();
@@ -417,7 +419,10 @@ fn run_inprocess(
                 continue;
             }
         };
-        let recorded_image = recording.as_ref().map(|_| image.clone());
+        // the recording draws the undistorted keypoints: on the pinhole image
+        let recorded_image = recording
+            .as_ref()
+            .map(|_| seq.pinhole_view(&image).unwrap_or_else(|| image.clone()));
         let out = vo.call(FrameInput {
             index: i,
             stamp: seq.times[i],

@@ -1,12 +1,15 @@
 //! Lens distortion with exact ground truth: the synthetic `dynamic` preset rendered through a
 //! radial-tangential, an equidistant (fisheye) and a field-of-view lens (`supermvo synth
 //! --distortion`, which writes the lens to `camera.yaml`), tracked with the lens model (the
-//! frames remapped to a pinhole camera as they load) and, for comparison, as if the camera
-//! were a pinhole (`--camera` with the intrinsics only). With the model the run must track
-//! every frame the pinhole rendering tracks and stay within 2.5x of its APE; without it the
-//! APE must be at least 4x the modelled run's. (Issue 23 asks for 10 %; measured: see
-//! docs/results.md. The remap resamples frames that the renderer already resampled, and the
-//! lens squeezes the image's edges into fewer pixels, so some accuracy is lost there.)
+//! default `undistort = "keypoints"`: keypoints found on the frames as rendered, then
+//! undistorted) and, for comparison, as if the camera were a pinhole (`--camera` with the
+//! intrinsics only). With the model the run must track every frame the pinhole rendering
+//! tracks and stay within 10 % of its APE (issue 23); without it the APE must be at least 4x
+//! the modelled run's. Measured: 0.80x, 0.85x and 0.82x the pinhole's APE (the lenses see a
+//! wider field than the pinhole rendering, and the keypoints keep all of it); remapping the
+//! frames instead (`undistort = "images"`, a second resampling) gives 0.98x and 1.12x for
+//! the first two: docs/results.md. The daemon, which undistorts in its features process,
+//! gives the in-process poses byte for byte (radial-tangential lens).
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
 mod common;
 
@@ -74,12 +77,34 @@ fn distorted_renderings_track_with_the_lens_model_and_not_without() {
             "{lens}: {p} posed, the pinhole rendering {posed}"
         );
         assert!(
-            a < 2.5 * ape,
+            a < 1.1 * ape,
             "{lens}: {a:.3} m, the pinhole rendering {ape:.3} m"
         );
         assert!(
             ar > 4.0 * a,
             "{lens}: without the model {ar:.3} m, with {a:.3} m"
         );
+        if lens == "radtan" {
+            // the daemon undistorts in its features process: the same poses, byte for byte
+            let out = root.join("out/radtan-daemon");
+            let name = format!("lens-{}", std::process::id());
+            let r = common::supermvo(&[
+                "run",
+                seq.to_str().unwrap(),
+                "--mode",
+                "multiprocess",
+                "--name",
+                &name,
+                "-q",
+                "--out",
+                out.to_str().unwrap(),
+            ]);
+            assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+            let read = |dir: &Path| std::fs::read(dir.join("trajectory.kitti.txt")).unwrap();
+            assert!(
+                read(&out) == read(&root.join("out/radtan")),
+                "the daemon's trajectory differs from the in-process one"
+            );
+        }
     }
 }
