@@ -57,7 +57,6 @@ pub fn extractor(cfg: &PipelineConfig) -> Result<Box<dyn Extractor + Send>> {
     })
 }
 
-/// Runs one features worker until SIGTERM.
 /// An extractor whose keypoints, found on frames as a camera with lens distortion recorded
 /// them, are moved to where the pinhole camera of the same intrinsics sees them
 /// ([`Camera::undistort_pixel`]); keypoints the lens model cannot invert are dropped.
@@ -109,6 +108,7 @@ pub fn with_lens(
     }
 }
 
+/// Runs one features worker until SIGTERM.
 pub fn run(args: &StageArgs) -> Result<()> {
     let cfg = args.load_config()?.pipeline;
     let workers = cfg.features_workers as u64;
