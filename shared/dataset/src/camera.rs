@@ -398,7 +398,10 @@ impl Remap {
 
 /// Remaps distorted images to the pinhole camera of the same intrinsics and size.
 #[derive(Debug, Clone)]
-pub struct Undistorter(Remap);
+pub struct Undistorter {
+    remap: Remap,
+    camera: Camera,
+}
 
 impl Undistorter {
     /// The map for `width x height` images of `camera` (`None` for a pinhole camera).
@@ -407,12 +410,20 @@ impl Undistorter {
             return None;
         }
         let lens = |x, y| camera.distortion.distort(x, y);
-        Some(Self(Remap::new(&camera.calib, width, height, lens)))
+        Some(Self {
+            remap: Remap::new(&camera.calib, width, height, lens),
+            camera: *camera,
+        })
+    }
+
+    /// The camera (with its lens) the map undoes.
+    pub fn camera(&self) -> &Camera {
+        &self.camera
     }
 
     /// The undistorted image; `img` must have the map's size.
     pub fn apply(&self, img: &GrayImage, path: &Path) -> Result<GrayImage, DatasetError> {
-        let (w, h) = self.0.size();
+        let (w, h) = self.remap.size();
         if (img.width, img.height) != (w, h) {
             return Err(DatasetError::invalid(
                 path,
@@ -425,7 +436,7 @@ impl Undistorter {
         Ok(GrayImage {
             width: w,
             height: h,
-            data: self.0.sample(&img.data),
+            data: self.remap.sample(&img.data),
         })
     }
 }
@@ -468,7 +479,7 @@ mod tests {
             size: Some((752, 480)),
         };
         let remap = Undistorter::new(&camera, 752, 480).unwrap();
-        let sources: Vec<Option<(f32, f32)>> = remap.0.sources().collect();
+        let sources: Vec<Option<(f32, f32)>> = remap.remap.sources().collect();
         for (u, v) in [(100.0, 80.0), (367.0, 248.0), (700.0, 450.0), (20.0, 400.0)] {
             let (pu, pv) = camera.undistort_pixel(u, v).unwrap();
             // the remapped frame's pixel nearest to (pu, pv) shows the input near (u, v)

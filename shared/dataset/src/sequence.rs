@@ -57,8 +57,6 @@ pub struct Sequence {
     pub layout: Layout,
     /// The remap of distorted frames, when the camera has distortion.
     undistort: Option<Arc<Undistorter>>,
-    /// The camera, when it has distortion.
-    lens: Option<Camera>,
     /// Whether [`Sequence::load_frame`] remaps distorted frames (the default) or returns
     /// them as recorded, for keypoints undistorted after extraction.
     remap: bool,
@@ -174,7 +172,6 @@ impl Sequence {
             images: Vec::new(),
             layout: Layout::Video,
             undistort,
-            lens: (camera.distortion != crate::camera::Distortion::None).then_some(camera),
             remap: true,
             video: Some(Arc::new(video)),
         })
@@ -220,7 +217,6 @@ impl Sequence {
             images,
             layout,
             undistort,
-            lens: (camera.distortion != crate::camera::Distortion::None).then_some(*camera),
             remap: true,
             video: None,
         })
@@ -251,7 +247,7 @@ impl Sequence {
     /// found on frames that were not remapped are undistorted with
     /// ([`Camera::undistort_pixel`]).
     pub fn lens(&self) -> Option<&Camera> {
-        self.lens.as_ref()
+        self.undistort.as_deref().map(Undistorter::camera)
     }
 
     /// A frame as [`Sequence::load_frame`] gave it, remapped to the pinhole camera its
@@ -312,7 +308,6 @@ impl Sequence {
             images,
             layout: Layout::Kitti,
             undistort: None,
-            lens: None,
             remap: true,
             video: None,
         })

@@ -310,14 +310,18 @@ fn run_counted(
 /// Estimated / true distance over consecutive 10-frame steps, from 5 frames after the
 /// initialisation on.
 fn scale_steps(traj: &[(Option<Vec3>, Vec3)]) -> Vec<f64> {
+    scale_over(traj, 10)
+}
+
+/// Estimated / true distance over consecutive `step`-frame stretches, from 5 frames after
+/// the initialisation on (NaN where either end has no pose).
+fn scale_over(traj: &[(Option<Vec3>, Vec3)], step: usize) -> Vec<f64> {
     let first = traj.iter().rposition(|t| t.0.is_none()).unwrap_or(0) + 5;
-    (first..traj.len() - 10)
-        .step_by(10)
-        .map(|a| {
-            let (Some(ea), Some(eb)) = (traj[a].0, traj[a + 10].0) else {
-                return f64::NAN;
-            };
-            (eb - ea).norm() / (traj[a + 10].1 - traj[a].1).norm()
+    (first..traj.len().saturating_sub(step))
+        .step_by(step)
+        .map(|a| match (traj[a].0, traj[a + step].0) {
+            (Some(ea), Some(eb)) => (eb - ea).norm() / (traj[a + step].1 - traj[a].1).norm(),
+            _ => f64::NAN,
         })
         .collect()
 }
@@ -628,19 +632,6 @@ fn frames_seen_while_initialising_are_posed_once_the_map_exists() {
         let (traj0, _, _, none) = run_counted(scene, 0.5, 0.1, off, drive);
         assert!(none.is_empty() && traj0[1].0.is_none(), "scene {scene}");
     }
-}
-
-/// Estimated / true distance over consecutive `step`-frame stretches, from 10 frames after
-/// the first posed frame (NaN where either end has no pose).
-fn scale_over(traj: &[(Option<Vec3>, Vec3)], step: usize) -> Vec<f64> {
-    let first = traj.iter().position(|t| t.0.is_some()).unwrap_or(0) + 10;
-    (first..traj.len().saturating_sub(step))
-        .step_by(step)
-        .map(|a| match (traj[a].0, traj[a + step].0) {
-            (Some(ea), Some(eb)) => (eb - ea).norm() / (traj[a + step].1 - traj[a].1).norm(),
-            _ => f64::NAN,
-        })
-        .collect()
 }
 
 /// A long straight road (400 frames, 400 m) with 1 px Gaussian keypoint noise, 30 % of the
