@@ -232,6 +232,11 @@ pub struct PipelineConfig {
     /// around each maximum); false (the default) keeps the reference's integer pixel
     /// positions.
     pub subpixel_keypoints: bool,
+    /// XFeat runs on the frame resized by this factor (its cost falls with the pixel
+    /// count; keypoints stay in the frame's pixels): below 1 for boards that cannot afford
+    /// the full frame, at some cost in accuracy (docs/results.md), [0.25, 1]. Other front
+    /// ends see the full frame.
+    pub image_scale: f64,
     /// Seed of the tracker's random sampling (the essential-matrix and PnP RANSAC): 0 (the
     /// default) gives the reported runs; any other value a different, equally deterministic
     /// run, to see how much a result depends on which samples RANSAC happened to draw.
@@ -270,6 +275,7 @@ impl Default for PipelineConfig {
             width_confidence: 0.95,
             depth_confidence: -1.0,
             subpixel_keypoints: false,
+            image_scale: 1.0,
             seed: 0,
         }
     }
@@ -331,6 +337,13 @@ impl PipelineConfig {
                 key: "pipeline.keyframe_ratio".into(),
                 value: self.keyframe_ratio.to_string(),
                 allowed: "must be in [0, 1]".into(),
+            });
+        }
+        if !(0.25..=1.0).contains(&self.image_scale) {
+            return Err(ConfigError::OutOfRange {
+                key: "pipeline.image_scale".into(),
+                value: self.image_scale.to_string(),
+                allowed: "must be in [0.25, 1]".into(),
             });
         }
         if !(1.0..=3.0).contains(&self.pnp_gate_widening) {
@@ -506,6 +519,8 @@ mod tests {
             ("depth_confidence", "-0.5"),
             ("keyframe_ratio", "1.5"),
             ("keyframe_ratio", "-0.1"),
+            ("image_scale", "0.2"),
+            ("image_scale", "1.5"),
         ] {
             let err =
                 Config::from_toml(&format!("[pipeline]\n{key} = {bad}\n"), Path::new("c.toml"))
@@ -523,6 +538,9 @@ mod tests {
         assert_eq!(cfg.pipeline.width_confidence, -1.0);
         assert_eq!(cfg.pipeline.depth_confidence, 0.95);
         assert!(cfg.pipeline.subpixel_keypoints);
+        let cfg =
+            Config::from_toml("[pipeline]\nimage_scale = 0.5\n", Path::new("c.toml")).unwrap();
+        assert_eq!(cfg.pipeline.image_scale, 0.5);
         let cfg = Config::from_toml("[pipeline]\nseed = 7\n", Path::new("c.toml")).unwrap();
         assert_eq!(cfg.pipeline.seed, 7);
     }

@@ -40,6 +40,9 @@ pub struct XFeatConfig {
     /// log-heatmap at the maximum and its two neighbours (a Gaussian peak fit), at most half
     /// a pixel. `false` (the default) gives the reference's integer positions.
     pub subpixel: bool,
+    /// The network sees the image resized by this factor (then to multiples of 32);
+    /// keypoints are returned in the image's own pixels. 1 (the default) is the reference.
+    pub image_scale: f32,
 }
 
 impl Default for XFeatConfig {
@@ -51,6 +54,7 @@ impl Default for XFeatConfig {
             spin: false,
             device: Device::Cpu,
             subpixel: false,
+            image_scale: 1.0,
         }
     }
 }
@@ -352,6 +356,19 @@ pub fn postprocess(raw: &XFeatRaw, image_size: (usize, usize), cfg: &XFeatConfig
     out
 }
 
+/// The network's input size for `image` resized by `scale`: multiples of 32, at least 32.
+fn network_size(image: &GrayImage, scale: f32) -> (usize, usize) {
+    let side = |n: usize| {
+        let scaled = if scale == 1.0 {
+            n
+        } else {
+            (n as f32 * scale).round() as usize
+        };
+        ((scaled / 32) * 32).max(32)
+    };
+    (side(image.width), side(image.height))
+}
+
 impl Extractor for XFeat {
     fn extract(&mut self, image: &GrayImage) -> Result<Features, InferenceError> {
         if image.width < 32 || image.height < 32 {
@@ -360,7 +377,7 @@ impl Extractor for XFeat {
                 image.width, image.height
             )));
         }
-        let (w32, h32) = ((image.width / 32) * 32, (image.height / 32) * 32);
+        let (w32, h32) = network_size(image, self.cfg.image_scale);
         let input = resize_bilinear(image, w32, h32);
         let cfg = self.cfg.clone();
         self.with_raw(&input, h32, w32, |raw| {

@@ -27,6 +27,7 @@ pub fn extractor(cfg: &PipelineConfig) -> Result<Box<dyn Extractor + Send>> {
                 spin: cfg.thread_spinning,
                 device: crate::common::device(cfg.device),
                 subpixel: cfg.subpixel_keypoints,
+                image_scale: cfg.image_scale as f32,
                 ..Default::default()
             },
         )?),
@@ -108,6 +109,16 @@ pub fn with_lens(
     }
 }
 
+/// Runs the network once on the sequence's first frame before the stage reports itself up:
+/// ONNX Runtime sizes its buffers on the first call, which takes several times as long as
+/// the next ones, and in real time the first frames would be late or dropped. Failures are
+/// left to the frame itself to report.
+fn warm_up(extractor: &mut dyn Extractor, seq: &Sequence) {
+    if let Ok(image) = seq.load_frame(0) {
+        let _ = extractor.extract(&image);
+    }
+}
+
 /// Runs one features worker until SIGTERM.
 pub fn run(args: &StageArgs) -> Result<()> {
     let cfg = args.load_config()?.pipeline;
@@ -126,6 +137,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
         .max_loaned_samples(2)
         .create()
         .map_err(|e| MessageError::ipc("features publisher", e))?;
+    warm_up(extractor.as_mut(), &seq);
     ctx.started();
     // frames arrive in order from one ingest; the inbox only filters this worker's share and
     // the history a restart replays

@@ -77,6 +77,36 @@ fn send(p: &MatchPublisher, mut h: FrameHeader, entries: &[MatchEntry]) -> Resul
     Ok(h)
 }
 
+/// Matches two made-up keypoint sets of the configured size once before the stage reports
+/// itself up (ONNX Runtime's first call is several times slower than the next ones; in real
+/// time the first frames would be late or dropped).
+fn warm_up(matcher: &mut dyn Matcher, n: usize, dim: usize) {
+    let mut state = 0x2545_f491_4f6c_dd1d_u64;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 40) as f32 / (1u64 << 24) as f32 - 0.5
+    };
+    let mut descriptors: Vec<f32> = (0..n * dim).map(|_| next()).collect();
+    for d in descriptors.chunks_mut(dim.max(1)) {
+        let norm = d.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-6);
+        d.iter_mut().for_each(|v| *v /= norm);
+    }
+    let at = |shift: f32| -> Features {
+        Features {
+            keypoints: (0..n)
+                .map(|i| [(i % 40) as f32 * 25.0 + shift, (i / 40) as f32 * 12.0])
+                .collect(),
+            scores: vec![1.0; n],
+            descriptors: descriptors.clone(),
+            dim,
+            image_size: (1024, 512),
+        }
+    };
+    let _ = matcher.match_features(&at(0.0), &at(3.0));
+}
+
 /// Runs the matching stage until SIGTERM.
 pub fn run(args: &StageArgs) -> Result<()> {
     let cfg = args.load_config()?.pipeline;
@@ -110,6 +140,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
     let mut inbox: Inbox<Option<Features>> = Inbox::new(0, 1);
     let mut cache: BTreeMap<u64, Features> = BTreeMap::new();
     let gap = Duration::from_millis(cfg.gap_timeout_ms);
+    warm_up(matcher.as_mut(), cfg.top_k, cfg.frontend.descriptor_dim());
     ctx.started();
     while ctx.wait() {
         drain_poses(&mut refs)?;

@@ -283,7 +283,9 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
         .map_err(|e| MessageError::ipc("progress subscriber", e))?;
 
     let mut workers: Vec<Worker> = Vec::new();
-    // downstream first, so every subscriber exists before data flows
+    // downstream first, so every subscriber exists before data flows; ingest only once every
+    // other stage is up (networks loaded and warmed up), so that in real time no frame is
+    // dropped or late while they start
     for stage in StageKind::ALL.iter().rev() {
         let n = if *stage == StageKind::Features {
             cfg.features_workers as u32
@@ -296,7 +298,7 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
                 index,
                 child: None,
                 restarts: 0,
-                restart_at: Some(Instant::now()),
+                restart_at: (*stage != StageKind::Ingest).then(Instant::now),
                 died_at: None,
                 last_seen: Instant::now(),
                 pending: None,
@@ -353,6 +355,8 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
     let mut interrupted = false;
     let mut failure: Option<String> = None;
     let deadline = Duration::from_millis(cfg.deadline_ms);
+    let mut up: std::collections::BTreeSet<(u32, u32)> = Default::default();
+    let mut ingest_waits = true;
 
     loop {
         if node.wait(Duration::from_millis(2)).is_err() {
@@ -398,6 +402,7 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
             {
                 w.last_seen = Instant::now();
                 if p.event == ProgressEvent::Started as u32 {
+                    up.insert((p.stage, p.worker));
                     if let (Some(i), Some(died)) = (w.pending.take(), w.died_at.take()) {
                         restarts[i].ready_ms = Some(died.elapsed().as_secs_f64() * 1e3);
                     }
@@ -431,6 +436,17 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
         }
         if finished {
             break;
+        }
+        if ingest_waits
+            && workers
+                .iter()
+                .filter(|w| w.stage != StageKind::Ingest)
+                .all(|w| up.contains(&(w.stage as u32, w.index)))
+        {
+            ingest_waits = false;
+            for w in workers.iter_mut().filter(|w| w.stage == StageKind::Ingest) {
+                w.restart_at = Some(Instant::now());
+            }
         }
         // deaths and hangs
         for w in workers.iter_mut() {

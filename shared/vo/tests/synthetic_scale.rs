@@ -66,6 +66,9 @@ struct Drive {
     straight: bool,
     /// Every keypoint with the same Gaussian noise, without the heavy tail.
     gaussian: bool,
+    /// From frame 10 on, frames `k` with `k % dropped.0 < dropped.1` never reach the tracker
+    /// (a real-time pipeline that drops frames it cannot take); `(0, 0)`: none.
+    dropped: (usize, usize),
 }
 
 impl Drive {
@@ -255,6 +258,9 @@ fn run_counted(
     let mut out = Vec::new();
     for k in 0..drive.frames() {
         let (mut f, mut ids) = observe(&s, k, noise_px, drive, &mut rng);
+        if k >= 10 && drive.dropped.0 > 0 && k % drive.dropped.0 < drive.dropped.1 {
+            continue;
+        }
         if (drive.blind.0..drive.blind.1).contains(&k) {
             (f.keypoints, f.scores, f.descriptors, ids) = Default::default();
         }
@@ -378,6 +384,34 @@ fn frames_between_keyframes_are_tracked_without_the_matcher() {
             }
             assert!(worst < 0.02, "scene {seed}: scale changed by {worst:.4}");
         }
+    }
+}
+
+/// Frames dropped before the tracker (two of every three, as a real-time pipeline that
+/// falls behind does): the frames it sees are still posed, most without the matcher, and
+/// the scale holds.
+#[test]
+fn tracking_continues_across_frames_dropped_upstream() {
+    let cfg = TrackerConfig {
+        match_every_frame: false,
+        ..TrackerConfig::default()
+    };
+    for seed in 0..3 {
+        let drive = Drive {
+            dropped: (3, 2),
+            ..Drive::default()
+        };
+        let (traj, matched, _, _) = run_counted(seed, 0.5, 0.1, cfg.clone(), drive);
+        let seen = traj.len();
+        let posed = traj.iter().filter(|t| t.0.is_some()).count();
+        let worst = worst_change(&scale_over(&traj, 4));
+        println!("scene {seed}: {seen} frames seen, {posed} posed, {matched} matched, scale within {worst:.4}");
+        assert!(posed + 3 >= seen, "scene {seed}: {posed} of {seen} posed");
+        assert!(
+            matched * 2 <= seen,
+            "scene {seed}: {matched} of {seen} matched"
+        );
+        assert!(worst < 0.03, "scene {seed}: scale changed by {worst:.4}");
     }
 }
 

@@ -350,14 +350,19 @@ type Networks = (
 /// The networks behind the disk cache named by `SUPERMVO_NETWORK_CACHE`, when it is set (for
 /// tracker studies that re-run the same clips; `supermvo_inference::cache`), else as given.
 fn network_cache((extractor, matcher): Networks, p: &supermvo_config::PipelineConfig) -> Networks {
-    let Some(dir) = std::env::var_os("SUPERMVO_NETWORK_CACHE") else {
+    // set but empty counts as unset (not as the current directory)
+    let Some(dir) = std::env::var_os("SUPERMVO_NETWORK_CACHE").filter(|d| !d.is_empty()) else {
         return (extractor, matcher);
     };
     use supermvo_inference::cache::Cached;
     let tag = format!(
         "{:?} top_k={} subpixel={} width={} depth={}",
         p.frontend, p.top_k, p.subpixel_keypoints, p.width_confidence, p.depth_confidence
-    );
+    ) + &if p.image_scale == 1.0 {
+        String::new()
+    } else {
+        format!(" scale={}", p.image_scale)
+    };
     let dir = PathBuf::from(dir);
     (
         Box::new(Cached::new(extractor, &dir, &tag)),

@@ -113,6 +113,7 @@ impl Tracker {
         let gap = input.index.saturating_sub(kf.frame).max(1) as f64;
         let r_step = supermvo_geometry::so3_exp(&(supermvo_geometry::so3_log(&r_rel) / gap));
         self.velocity = Some((r_step, t_rel / gap));
+        self.unseen = 0;
         let counts = (m.pairs.len(), est.inlier_count());
         let mut out = self.output(
             input,

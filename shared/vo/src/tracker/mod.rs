@@ -89,6 +89,11 @@ pub struct Tracker {
     velocity: Option<(Mat3, Vec3)>,
     /// Blind frames in a row for which the map was kept (relocalisation).
     lost_streak: usize,
+    /// The index of the last frame handed to the tracker, and how many frames since the
+    /// last tracked one never reached it (dropped upstream by a real-time pipeline): the
+    /// motion model spans them.
+    last_index: Option<usize>,
+    unseen: usize,
     /// The last local BA, until taken.
     last_ba: Option<BaStats>,
     /// Scale of the map (median landmark depth at initialisation), to carry across
@@ -120,6 +125,8 @@ impl Tracker {
             last_pose: (Mat3::identity(), Vec3::zeros()),
             velocity: None,
             lost_streak: 0,
+            last_index: None,
+            unseen: 0,
             last_ba: None,
             scale: None,
             last_frame: None,
@@ -127,12 +134,21 @@ impl Tracker {
         }
     }
 
+    /// Counts the frames that never reached the tracker before this one (`index` jumps).
+    fn note_frame(&mut self, index: usize) {
+        if let Some(last) = self.last_index {
+            self.unseen += index.saturating_sub(last + 1);
+        }
+        self.last_index = Some(index);
+    }
+
     /// The pose of the next frame under constant velocity (`None` until two frames were
-    /// tracked in a row), across the frames that failed since the last tracked one.
+    /// tracked in a row), across the frames that failed or never arrived since the last
+    /// tracked one.
     fn predict(&self) -> Option<(Mat3, Vec3)> {
         let (rv, tv) = self.velocity?;
         let (mut r, mut t) = self.last_pose;
-        for _ in 0..=self.lost_streak {
+        for _ in 0..=self.lost_streak + self.unseen {
             (r, t) = (rv * r, rv * t + tv);
         }
         Some((r, t))
@@ -204,6 +220,7 @@ impl Tracker {
         self.last_pose = (r, t);
         self.velocity = None;
         self.lost_streak = 0;
+        self.unseen = 0;
         self.scale = scale;
         self.keyframe = None;
         self.map.landmarks.clear();
@@ -363,6 +380,9 @@ impl Tracker {
         cur: Features,
         matches: Option<&Matches>,
     ) -> FrameOutput {
+        if self.last_index != Some(meta.index) {
+            self.note_frame(meta.index);
+        }
         let initialised = self
             .keyframe
             .as_ref()
@@ -417,6 +437,47 @@ mod tests {
             dim: 4,
             image_size: (1241, 376),
         }
+    }
+
+    /// Frames dropped upstream (a real-time pipeline behind) never reach the tracker: the
+    /// prediction for the next frame it sees spans them, and the motion measured over the
+    /// gap becomes a motion per frame again.
+    #[test]
+    fn the_motion_model_spans_frames_that_never_arrived() {
+        let mut tr = Tracker::new(calibration(620.0, 188.0), TrackerConfig::default());
+        let yaw = |a: f64| supermvo_geometry::so3_exp(&Vec3::new(0.0, a, 0.0));
+        tr.velocity = Some((yaw(0.02), Vec3::new(0.0, 0.0, -1.0)));
+        tr.last_pose = (Mat3::identity(), Vec3::zeros());
+        tr.note_frame(10);
+        let (r1, t1) = tr.predict().unwrap();
+        // frames 11 and 12 dropped: frame 13 is three steps on
+        tr.note_frame(13);
+        assert_eq!(tr.unseen, 2);
+        let (r3, t3) = tr.predict().unwrap();
+        let mut expected = (Mat3::identity(), Vec3::zeros());
+        for _ in 0..3 {
+            expected = (
+                yaw(0.02) * expected.0,
+                yaw(0.02) * expected.1 + Vec3::new(0.0, 0.0, -1.0),
+            );
+        }
+        assert!((r3 - expected.0).norm() < 1e-12 && (t3 - expected.1).norm() < 1e-12);
+        assert!((r1 - yaw(0.02)).norm() < 1e-12 && (t1 - Vec3::new(0.0, 0.0, -1.0)).norm() < 1e-12);
+        // tracked there: the velocity is per frame, the gap closed
+        let meta = FrameMeta {
+            index: 13,
+            stamp: 1.3,
+        };
+        let fit = tracking::PoseFit {
+            r: expected.0,
+            t: expected.1,
+            inlier: Vec::new(),
+        };
+        tr.update_motion_model(&meta, &fit);
+        let (rv, tv) = tr.velocity.unwrap();
+        assert!((rv - yaw(0.02)).norm() < 1e-9, "{rv}");
+        assert!((tv - Vec3::new(0.0, 0.0, -1.0)).norm() < 0.02, "{tv}");
+        assert_eq!(tr.unseen, 0);
     }
 
     /// A reference that too few matches reach (fewer than `min_init_landmarks`) can never

@@ -33,6 +33,7 @@ impl Tracker {
         );
         self.velocity = None;
         self.lost_streak = 0;
+        self.unseen = 0;
         self.map.landmarks.clear();
         self.map.tracks.clear();
         self.map.segment_start = self.map.keyframe_poses.len();
@@ -119,6 +120,7 @@ impl Tracker {
         let (r, t) = self.last_pose;
         self.velocity = None;
         self.lost_streak = 0;
+        self.unseen = 0;
         self.map.landmarks.clear();
         self.map.tracks.clear();
         self.map.segment_start = self.map.keyframe_poses.len();

@@ -307,8 +307,8 @@ impl Tracker {
     }
 
     /// The frame's pose becomes the last pose; the motion since the last tracked one the
-    /// constant-velocity model (after a relocalisation the gap spans failed frames, so the
-    /// model starts again).
+    /// constant-velocity model, per frame when frames were dropped before this one (after a
+    /// relocalisation the gap spans failed frames, so the model starts again).
     pub(super) fn update_motion_model(&mut self, input: &FrameMeta, fit: &PoseFit) {
         let (r, t) = (fit.r, fit.t);
         if self.lost_streak > 0 {
@@ -316,11 +316,19 @@ impl Tracker {
             tracing::debug!(frame = input.index, after = self.lost_streak, "relocalised");
             self.velocity = None;
             self.lost_streak = 0;
-        } else {
+        } else if self.unseen == 0 {
             let (lr, lt) = self.last_pose;
             let rv = r * lr.transpose();
             self.velocity = Some((rv, t - rv * lt));
+        } else {
+            // frames dropped upstream: the motion per frame over the gap
+            let (lr, lt) = self.last_pose;
+            let rv = r * lr.transpose();
+            let steps = (self.unseen + 1) as f64;
+            let r_step = supermvo_geometry::so3_exp(&(supermvo_geometry::so3_log(&rv) / steps));
+            self.velocity = Some((r_step, (t - rv * lt) / steps));
         }
+        self.unseen = 0;
         self.last_pose = (r, t);
         self.frames_since_keyframe += 1;
     }
