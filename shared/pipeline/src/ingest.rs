@@ -17,7 +17,8 @@ use supermvo_messages::{
 };
 
 /// Frames in flight at most in real-time mode: a frame that would wait behind more than this
-/// is stale by the time it is processed, so it is dropped (and reported) instead.
+/// is stale by the time it is processed. It waits for a free slot only until the next frame
+/// is captured, and is then dropped (and reported) in favour of the newer one.
 pub const REALTIME_IN_FLIGHT: usize = 2;
 
 /// The frames the replay emits: `seq` maps to a frame of the sequence and a timestamp that
@@ -140,6 +141,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
             continue;
         }
         let (index, t) = replay.frame(next);
+        let mut captured_ns = None;
         match cfg.mode {
             IngestMode::Lossless => {
                 if in_flight as usize >= MAX_IN_FLIGHT {
@@ -149,12 +151,25 @@ pub fn run(args: &StageArgs) -> Result<()> {
                 }
             }
             IngestMode::Realtime => {
-                let due = Duration::from_secs_f64(((t - stamp_start) / cfg.speed).max(0.0));
-                if t0.elapsed() < due {
+                let due_at =
+                    |t: f64| Duration::from_secs_f64(((t - stamp_start) / cfg.speed).max(0.0));
+                let (due, now) = (due_at(t), t0.elapsed());
+                if now < due {
                     publisher_keepalive(&frames);
                     ctx.heartbeat_if_idle();
                     continue;
                 }
+                // a full pipeline: the frame waits for a free slot until the next one is
+                // captured, which then replaces it (a camera driver keeping the newest
+                // frame); its capture time stays when it was due
+                let next_due =
+                    (next + 1 < replay.total()).then(|| due_at(replay.frame(next + 1).1));
+                if in_flight as usize >= REALTIME_IN_FLIGHT && next_due.is_some_and(|d| now < d) {
+                    publisher_keepalive(&frames);
+                    ctx.heartbeat_if_idle();
+                    continue;
+                }
+                captured_ns = Some(now_ns().saturating_sub((now - due).as_nanos() as u64));
                 if in_flight as usize >= REALTIME_IN_FLIGHT {
                     let mut h = FrameHeader::new(next, index as u64, t, Status::Dropped);
                     stamp(&mut h, StageKind::Ingest);
@@ -167,7 +182,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
         }
         let t_in = now_ns();
         let size = (first.width, first.height);
-        let h = publish_frame((&frames, &views), &seq, next, index, t, size)?;
+        let h = publish_frame((&frames, &views), &seq, (next, index, t, captured_ns), size)?;
         ctx.frame_done(&h, t_in, in_flight as usize);
         next += 1;
     }
@@ -190,9 +205,7 @@ fn publisher_keepalive(p: &FramePublisher) {
 fn publish_frame(
     (p, views): (&FramePublisher, &crate::views::ImageViews),
     seq: &Sequence,
-    next: u64,
-    index: usize,
-    t: f64,
+    (next, index, t, captured_ns): (u64, usize, f64, Option<u64>),
     size: (usize, usize),
 ) -> Result<FrameHeader> {
     let image = match seq.load_frame(index) {
@@ -222,6 +235,10 @@ fn publish_frame(
     h.width = image.width as u32;
     h.height = image.height as u32;
     stamp(&mut h, StageKind::Ingest);
+    if let Some(captured) = captured_ns {
+        // capture-to-pose latency counts from when the frame was due, waiting included
+        h.t_ns[StageKind::Ingest as usize] = captured;
+    }
     send_slice(p, h, &image.data)?;
     if views.listening() {
         // viewers draw the undistorted keypoints: show them the pinhole image

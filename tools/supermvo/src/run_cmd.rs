@@ -53,8 +53,12 @@ pub struct RunArgs {
     #[arg(long, value_enum, default_value_t = Mode::Multiprocess)]
     mode: Mode,
     /// Configuration file (see config/default.toml); the options below override it.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "profile")]
     config: Option<PathBuf>,
+    /// A built-in configuration: `realtime` (10 Hz on two cores: the daemon in real time
+    /// with a smaller front end; config/realtime.toml); the options below override it.
+    #[arg(long, value_parser = clap::builder::PossibleValuesParser::new(Config::PROFILES.map(|(n, _)| n)))]
+    profile: Option<String>,
     /// Front end: xfeat-lighterglue (learned, the default), aliked-lightglue (learned, more
     /// accurate, slower), orb (classical baseline) or superpoint-superglue (official weights
     /// exported locally) [pipeline.frontend].
@@ -120,9 +124,10 @@ pub struct RunArgs {
 impl RunArgs {
     /// The effective configuration: file (or defaults), then command-line overrides.
     fn config(&self) -> Result<Config> {
-        let mut cfg = match &self.config {
-            Some(p) => Config::load(p)?,
-            None => Config::default(),
+        let mut cfg = match (&self.config, &self.profile) {
+            (Some(p), _) => Config::load(p)?,
+            (None, Some(name)) => Config::profile(name)?,
+            (None, None) => Config::default(),
         };
         let p = &mut cfg.pipeline;
         if let Some(v) = self.top_k {

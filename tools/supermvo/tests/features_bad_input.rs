@@ -274,3 +274,22 @@ fn out_of_range_run_flags_are_refused_by_the_flag_name() {
         assert!(!err.contains("pipeline."), "{flag}: {err}");
     }
 }
+
+/// `--profile` takes the built-in names only, and not together with `--config`.
+#[test]
+fn an_unknown_profile_or_one_beside_a_config_file_is_refused() {
+    let out = common::supermvo(&["run", "seq", "--profile", "fast"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--profile") && err.contains("realtime"),
+        "{err}"
+    );
+    let out = common::supermvo(&["run", "seq", "--profile", "realtime", "--config", "c.toml"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--profile") && err.contains("--config"),
+        "{err}"
+    );
+}
