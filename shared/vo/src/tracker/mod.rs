@@ -134,10 +134,13 @@ impl Tracker {
         }
     }
 
-    /// Counts the frames that never reached the tracker before this one (`index` jumps).
+    /// Counts the frames that never reached the tracker before this one (`index` jumps);
+    /// a frame handed over twice (tried without matches, then stepped) counts once.
     fn note_frame(&mut self, index: usize) {
-        if let Some(last) = self.last_index {
-            self.unseen += index.saturating_sub(last + 1);
+        match self.last_index {
+            Some(last) if last == index => return,
+            Some(last) => self.unseen += index.saturating_sub(last + 1),
+            None => {}
         }
         self.last_index = Some(index);
     }
@@ -380,9 +383,7 @@ impl Tracker {
         cur: Features,
         matches: Option<&Matches>,
     ) -> FrameOutput {
-        if self.last_index != Some(meta.index) {
-            self.note_frame(meta.index);
-        }
+        self.note_frame(meta.index);
         let initialised = self
             .keyframe
             .as_ref()

@@ -71,9 +71,7 @@ impl Tracker {
         input: FrameMeta,
         cur: &Features,
     ) -> Option<FrameOutput> {
-        if self.last_index != Some(input.index) {
-            self.note_frame(input.index);
-        }
+        self.note_frame(input.index);
         if self.wants_matches() {
             return None;
         }

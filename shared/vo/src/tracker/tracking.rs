@@ -316,17 +316,18 @@ impl Tracker {
             tracing::debug!(frame = input.index, after = self.lost_streak, "relocalised");
             self.velocity = None;
             self.lost_streak = 0;
-        } else if self.unseen == 0 {
-            let (lr, lt) = self.last_pose;
-            let rv = r * lr.transpose();
-            self.velocity = Some((rv, t - rv * lt));
         } else {
-            // frames dropped upstream: the motion per frame over the gap
             let (lr, lt) = self.last_pose;
             let rv = r * lr.transpose();
-            let steps = (self.unseen + 1) as f64;
-            let r_step = supermvo_geometry::so3_exp(&(supermvo_geometry::so3_log(&rv) / steps));
-            self.velocity = Some((r_step, (t - rv * lt) / steps));
+            let tv = t - rv * lt;
+            self.velocity = Some(if self.unseen == 0 {
+                (rv, tv)
+            } else {
+                // frames dropped upstream: the motion per frame over the gap
+                let steps = (self.unseen + 1) as f64;
+                let r_step = supermvo_geometry::so3_exp(&(supermvo_geometry::so3_log(&rv) / steps));
+                (r_step, tv / steps)
+            });
         }
         self.unseen = 0;
         self.last_pose = (r, t);
