@@ -457,6 +457,87 @@ fn sampson_residual(e: &Mat3, x1: &Vec3, x2: &Vec3) -> f64 {
     }
 }
 
+/// The Sampson errors of correspondences under `E = [t]x R`, over the rotation (a right
+/// perturbation) and the translation direction (on the unit sphere), with a
+/// forward-difference Jacobian.
+struct SampsonProblem<'a> {
+    x1: &'a [Vec3],
+    x2: &'a [Vec3],
+}
+
+impl SampsonProblem<'_> {
+    fn essential((r, t): &(Mat3, Vec3)) -> Mat3 {
+        crate::rotation::skew(t) * r
+    }
+
+    fn residuals(&self, e: &Mat3) -> impl Iterator<Item = f64> + '_ {
+        let e = *e;
+        self.x1
+            .iter()
+            .zip(self.x2)
+            .map(move |(a, b)| sampson_residual(&e, a, b))
+    }
+}
+
+impl supermvo_optim::LeastSquares for SampsonProblem<'_> {
+    type State = (Mat3, Vec3);
+    type System = (SMatrix<f64, 5, 5>, SMatrix<f64, 5, 1>);
+    type Step = SMatrix<f64, 5, 1>;
+
+    fn cost(&self, state: &(Mat3, Vec3)) -> f64 {
+        self.residuals(&Self::essential(state))
+            .map(|r| r.powi(2))
+            .sum()
+    }
+
+    fn linearize(&mut self, state: &(Mat3, Vec3)) -> Option<Self::System> {
+        let res: Vec<f64> = self.residuals(&Self::essential(state)).collect();
+        let h = 1e-7;
+        let cols: Vec<Vec<f64>> = (0..5)
+            .map(|k| {
+                let mut d = SMatrix::<f64, 5, 1>::zeros();
+                d[k] = h;
+                let moved = Self::essential(&self.retract(state, &d));
+                self.residuals(&moved)
+                    .zip(&res)
+                    .map(|(rk, r0)| (rk - r0) / h)
+                    .collect()
+            })
+            .collect();
+        let mut jtj = SMatrix::<f64, 5, 5>::zeros();
+        let mut jtr = SMatrix::<f64, 5, 1>::zeros();
+        for (i, r) in res.iter().enumerate() {
+            let j = SMatrix::<f64, 5, 1>::from_fn(|k, _| cols[k][i]);
+            jtj += j * j.transpose();
+            jtr += j * *r;
+        }
+        Some((jtj, jtr))
+    }
+
+    /// Damped by `lambda diag(H)`.
+    fn solve(&mut self, (jtj, jtr): &Self::System, lambda: f64) -> Option<Self::Step> {
+        let mut a = *jtj;
+        for k in 0..5 {
+            a[(k, k)] += lambda * (jtj[(k, k)] + 1e-12);
+        }
+        a.cholesky().map(|c| c.solve(&(-jtr)))
+    }
+
+    fn retract(&self, (r, t): &(Mat3, Vec3), d: &Self::Step) -> (Mat3, Vec3) {
+        // tangent basis of the sphere at t
+        let a = if t.x.abs() < 0.9 {
+            Vec3::x()
+        } else {
+            Vec3::y()
+        };
+        let b1 = t.cross(&a).normalize();
+        let b2 = t.cross(&b1);
+        let r2 = r * crate::so3_exp(&Vec3::new(d[0], d[1], d[2]));
+        let t2 = (t + b1 * d[3] + b2 * d[4]).normalize();
+        (r2, t2)
+    }
+}
+
 /// Levenberg-Marquardt on `E = [t]x R` (rotation by a right perturbation, `t` on the unit
 /// sphere): minimises the sum of squared Sampson residuals of the given correspondences.
 pub fn refine_essential(e: &Mat3, x1: &[Vec3], x2: &[Vec3], iterations: usize) -> Mat3 {
@@ -475,79 +556,14 @@ pub fn refine_essential(e: &Mat3, x1: &[Vec3], x2: &[Vec3], iterations: usize) -
         vt = -vt;
     }
     let w = Mat3::new(0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0);
-    let mut r = u * w * vt;
-    let mut t: Vec3 = u.column(2).into_owned();
-    let build = |r: &Mat3, t: &Vec3| crate::rotation::skew(t) * r;
-    let cost = |em: &Mat3| {
-        (0..n)
-            .map(|i| sampson_residual(em, &x1[i], &x2[i]).powi(2))
-            .sum::<f64>()
+    let start = (u * w * vt, u.column(2).into_owned());
+    let mut problem = SampsonProblem {
+        x1: &x1[..n],
+        x2: &x2[..n],
     };
-    let apply = |r: &Mat3, t: &Vec3, d: &SMatrix<f64, 5, 1>| -> (Mat3, Vec3) {
-        // tangent basis of the sphere at t
-        let a = if t.x.abs() < 0.9 {
-            Vec3::x()
-        } else {
-            Vec3::y()
-        };
-        let b1 = t.cross(&a).normalize();
-        let b2 = t.cross(&b1);
-        let r2 = r * crate::so3_exp(&Vec3::new(d[0], d[1], d[2]));
-        let t2 = (t + b1 * d[3] + b2 * d[4]).normalize();
-        (r2, t2)
-    };
-    let mut current = cost(&build(&r, &t));
-    let mut lambda = 1e-3;
-    for _ in 0..iterations {
-        let e0 = build(&r, &t);
-        let res: Vec<f64> = (0..n)
-            .map(|i| sampson_residual(&e0, &x1[i], &x2[i]))
-            .collect();
-        let mut jtj = SMatrix::<f64, 5, 5>::zeros();
-        let mut jtr = SMatrix::<f64, 5, 1>::zeros();
-        let h = 1e-7;
-        let mut cols: Vec<Vec<f64>> = Vec::with_capacity(5);
-        for k in 0..5 {
-            let mut d = SMatrix::<f64, 5, 1>::zeros();
-            d[k] = h;
-            let (rk, tk) = apply(&r, &t, &d);
-            let ek = build(&rk, &tk);
-            cols.push(
-                (0..n)
-                    .map(|i| (sampson_residual(&ek, &x1[i], &x2[i]) - res[i]) / h)
-                    .collect(),
-            );
-        }
-        for i in 0..n {
-            let j = SMatrix::<f64, 5, 1>::from_fn(|k, _| cols[k][i]);
-            jtj += j * j.transpose();
-            jtr += j * res[i];
-        }
-        let mut improved = false;
-        for _ in 0..6 {
-            let mut a = jtj;
-            for k in 0..5 {
-                a[(k, k)] += lambda * (jtj[(k, k)] + 1e-12);
-            }
-            let Some(d) = a.cholesky().map(|c| c.solve(&(-jtr))) else {
-                lambda *= 10.0;
-                continue;
-            };
-            let (r2, t2) = apply(&r, &t, &d);
-            let c2 = cost(&build(&r2, &t2));
-            if c2 < current {
-                (r, t, current) = (r2, t2, c2);
-                lambda = (lambda * 0.1).max(1e-9);
-                improved = true;
-                break;
-            }
-            lambda *= 10.0;
-        }
-        if !improved {
-            break;
-        }
-    }
-    let em = build(&r, &t);
+    let params = supermvo_optim::LmParams::marquardt(1e-3, 1e-9, 6, iterations);
+    let refined = supermvo_optim::minimise(&mut problem, start, params).0;
+    let em = SampsonProblem::essential(&refined);
     em / em.norm()
 }
 

@@ -2,10 +2,14 @@
 //!
 //! Conventions: a pose named `T_a_b` maps points expressed in frame `b` into frame `a`
 //! (`p_in_a = T_a_b * p_in_b`). Trajectories store `T_world_cam` per frame.
+//!
+//! The refinements of the minimal solvers run on the project's one least-squares core,
+//! `supermvo-optim`.
 
 pub mod essential;
 pub mod pnp;
 mod pose;
+mod pose_refinement;
 pub mod rng;
 mod rotation;
 mod sim3;

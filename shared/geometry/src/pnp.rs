@@ -1,5 +1,5 @@
 //! Camera pose from 2D-3D correspondences: EPnP (Lepetit, Moreno-Noguer and Fua, 2009)
-//! inside RANSAC, refined by Gauss-Newton on the reprojection error.
+//! inside RANSAC, refined on the reprojection error (`pose_refinement`).
 //!
 //! Conventions: `points_world[i]` is a 3D point in the world frame and `bearings[i]` its
 //! normalised image coordinates `(x, y, 1)` (`K^-1 [u v 1]^T`). The result is
@@ -9,6 +9,7 @@
 //! data with six or more points in general position (the RANSAC sample size is six); the
 //! Gauss-Newton refinement then minimises the reprojection error on all inliers.
 
+pub use crate::pose_refinement::{refine_pose, refine_pose_robust};
 use crate::{Mat3, Vec3};
 use nalgebra::{SMatrix, SVector};
 
@@ -142,132 +143,6 @@ pub fn reprojection_sq(r: &Mat3, t: &Vec3, p: &Vec3, b: &Vec3) -> f64 {
     }
     let (u, v) = (b.x / b.z, b.y / b.z);
     (q.x / q.z - u).powi(2) + (q.y / q.z - v).powi(2)
-}
-
-/// Reprojection residual (normalised units) of world point `p` under `T_cam_world = (r, t)`
-/// against bearing `b`, and its Jacobian for the left perturbation `T <- Exp(delta) T`,
-/// `delta = (omega, v)`; `None` for a point not in front.
-fn residual_jacobian(
-    r: &Mat3,
-    t: &Vec3,
-    p: &Vec3,
-    b: &Vec3,
-) -> Option<(nalgebra::Vector2<f64>, SMatrix<f64, 2, 6>)> {
-    let q = r * p + t;
-    if q.z <= 1e-9 {
-        return None;
-    }
-    let (iz, iz2) = (1.0 / q.z, 1.0 / (q.z * q.z));
-    let res = nalgebra::Vector2::new(q.x * iz - b.x / b.z, q.y * iz - b.y / b.z);
-    let dpi = SMatrix::<f64, 2, 3>::new(iz, 0.0, -q.x * iz2, 0.0, iz, -q.y * iz2);
-    // d q / d (omega, v): [-[q]x | I]
-    let mut dq = SMatrix::<f64, 3, 6>::zeros();
-    dq.fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&(-crate::skew(&q)));
-    dq.fixed_view_mut::<3, 3>(0, 3).copy_from(&Mat3::identity());
-    Some((res, dpi * dq))
-}
-
-/// Gauss-Newton (with a few Levenberg steps) on the reprojection error of the given
-/// correspondences, perturbing `T_cam_world` on the left.
-pub fn refine_pose(
-    r: &Mat3,
-    t: &Vec3,
-    points_world: &[Vec3],
-    bearings: &[Vec3],
-    iterations: usize,
-) -> (Mat3, Vec3) {
-    let (mut r, mut t) = (*r, *t);
-    let cost = |r: &Mat3, t: &Vec3| {
-        points_world
-            .iter()
-            .zip(bearings)
-            .map(|(p, b)| reprojection_sq(r, t, p, b).min(1e6))
-            .sum::<f64>()
-    };
-    let mut current = cost(&r, &t);
-    let mut lambda = 1e-6;
-    for _ in 0..iterations {
-        let mut h = SMatrix::<f64, 6, 6>::zeros();
-        let mut g = SVector::<f64, 6>::zeros();
-        for (p, b) in points_world.iter().zip(bearings) {
-            let Some((res, j)) = residual_jacobian(&r, &t, p, b) else {
-                continue;
-            };
-            h += j.transpose() * j;
-            g += j.transpose() * res;
-        }
-        let mut improved = false;
-        for _ in 0..8 {
-            let mut a = h;
-            for k in 0..6 {
-                a[(k, k)] += lambda * (h[(k, k)] + 1e-12);
-            }
-            let Some(d) = a.cholesky().map(|c| c.solve(&(-g))) else {
-                lambda *= 10.0;
-                continue;
-            };
-            let dr = crate::so3_exp(&Vec3::new(d[0], d[1], d[2]));
-            let (r2, t2) = (dr * r, dr * t + Vec3::new(d[3], d[4], d[5]));
-            let c2 = cost(&r2, &t2);
-            if c2 < current {
-                (r, t, current) = (r2, t2, c2);
-                lambda = (lambda * 0.1).max(1e-12);
-                improved = true;
-                break;
-            }
-            lambda *= 10.0;
-        }
-        if !improved {
-            break;
-        }
-    }
-    (r, t)
-}
-
-/// Refines `T_cam_world = (r, t)` on every correspondence under a robust loss, so that the
-/// result is a smooth function of the data rather than of which points a threshold happened
-/// to select: iteratively reweighted Gauss-Newton with Huber weights (threshold `k`,
-/// normalised units) and weight zero beyond `cutoff`.
-pub fn refine_pose_robust(
-    r: &Mat3,
-    t: &Vec3,
-    points_world: &[Vec3],
-    bearings: &[Vec3],
-    (k, cutoff): (f64, f64),
-    iterations: usize,
-) -> (Mat3, Vec3) {
-    let (mut r, mut t) = (*r, *t);
-    for _ in 0..iterations {
-        let mut h = SMatrix::<f64, 6, 6>::zeros();
-        let mut g = SVector::<f64, 6>::zeros();
-        let mut used = 0;
-        for (p, b) in points_world.iter().zip(bearings) {
-            let Some((res, j)) = residual_jacobian(&r, &t, p, b) else {
-                continue;
-            };
-            let e = res.norm();
-            if e >= cutoff {
-                continue;
-            }
-            let w = if e <= k { 1.0 } else { k / e };
-            h += w * j.transpose() * j;
-            g += w * j.transpose() * res;
-            used += 1;
-        }
-        if used < 6 {
-            break;
-        }
-        let Some(d) = h.cholesky().map(|c| c.solve(&(-g))) else {
-            break;
-        };
-        let dr = crate::so3_exp(&Vec3::new(d[0], d[1], d[2]));
-        (r, t) = (dr * r, dr * t + Vec3::new(d[3], d[4], d[5]));
-        if d.norm() < 1e-10 {
-            break;
-        }
-    }
-    (r, t)
 }
 
 /// PnP in RANSAC: EPnP on six-point samples, inliers by reprojection error (pixels, with

@@ -3,8 +3,8 @@
 //! `(omega, v, sigma)` for Sim(3) (`sigma` the log of the scale); retraction `X * Exp(delta)`;
 //! `Local(a, b) = Log(a^-1 b)`.
 
+use crate::so3::{skew, so3_exp, so3_log};
 use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
-use supermvo_geometry::{skew, so3_exp, so3_log};
 
 /// A matrix Lie group with a `D`-dimensional tangent space.
 pub trait LieGroup<const D: usize>: Copy + std::fmt::Debug {

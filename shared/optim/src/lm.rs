@@ -1,33 +1,79 @@
-//! Levenberg-Marquardt with GTSAM's semantics (`LevenbergMarquardtParams` defaults):
-//! lambda starts at 1e-5 and is multiplied by 10 after a rejected step and divided by 10
-//! after an accepted one (bounded to [0, 1e5]); damping adds `lambda * I`; a step is
-//! accepted when the actual over the predicted cost decrease exceeds 1e-3; iterations stop
-//! when the relative or absolute error decrease falls below 1e-5, after 100 iterations, or
-//! when lambda exceeds its bound. The normal equations are solved by a sparse Cholesky
-//! factorisation on faer with a fill-reducing (AMD) ordering computed once.
+//! The project's one Levenberg-Marquardt driver. A problem says how to evaluate its cost,
+//! linearise (the normal equations), solve them damped, and apply a step; the driver owns
+//! the damping schedule, the acceptance of a step and the stopping rules, all set by
+//! [`LmParams`]:
+//! - GTSAM's semantics ([`LmParams::default`], the pose graphs): lambda from 1e-5, divided
+//!   by 10 after an accepted step and multiplied by 10 after a rejected one within [0, 1e5];
+//!   a step is accepted when the actual over the predicted cost decrease exceeds 1e-3;
+//!   stopping when the relative or absolute decrease falls below 1e-5, after 100
+//!   iterations, or when lambda exceeds its bound;
+//! - Marquardt's rule for small problems ([`LmParams::marquardt`]: PnP and essential-matrix
+//!   refinement, local bundle adjustment): a step is accepted when it lowers the cost, a few
+//!   dampings are tried per linearisation, and the run stops when none helps;
+//! - Gauss-Newton ([`LmParams::gauss_newton`]: iteratively reweighted refinements whose
+//!   weights change with every linearisation): every solvable step is taken, until one is
+//!   shorter than a tolerance.
+//!
+//! How the damping enters the normal equations (`lambda I` or `lambda diag(H)`) is the
+//! problem's choice, made in [`LeastSquares::solve`].
 
-use crate::graph::{GraphError, PoseGraph};
-use crate::lie::LieGroup;
-use crate::sparse::BlockCholesky;
-use nalgebra::{SMatrix, SVector};
+/// A least-squares problem as the driver sees it.
+pub trait LeastSquares {
+    /// The variables.
+    type State: Clone;
+    /// The normal equations at a state.
+    type System;
+    /// A solution of the damped normal equations.
+    type Step;
 
-/// Lower-triangle blocks `((row block, column block), value)` of `H`.
-type Blocks<const D: usize> = Vec<((usize, usize), SMatrix<f64, D, D>)>;
+    /// The (robust) cost at a state.
+    fn cost(&self, state: &Self::State) -> f64;
+    /// The normal equations at `state`; `None` when the problem cannot be linearised (too
+    /// few residuals constrain it), which stops the run.
+    fn linearize(&mut self, state: &Self::State) -> Option<Self::System>;
+    /// Solves the normal equations damped by `lambda`; `None` when they are not positive
+    /// definite (the driver then raises the damping).
+    fn solve(&mut self, system: &Self::System, lambda: f64) -> Option<Self::Step>;
+    /// The state moved by a step.
+    fn retract(&self, state: &Self::State, step: &Self::Step) -> Self::State;
+    /// The decrease of the linearised cost, `-(g.d + d.H.d / 2)`; needed by
+    /// [`Acceptance::ModelFidelity`] (without it a step must lower the cost).
+    fn predicted_decrease(&self, _system: &Self::System, _step: &Self::Step) -> Option<f64> {
+        None
+    }
+    /// The size of a step, compared with [`LmParams::step_tol`].
+    fn step_norm(&self, _step: &Self::Step) -> f64 {
+        f64::INFINITY
+    }
+}
 
-/// Optimiser settings (GTSAM's defaults).
+/// When a step is taken.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Acceptance {
+    /// When it lowers the cost.
+    CostDecrease,
+    /// When the actual over the predicted cost decrease exceeds this (GTSAM).
+    ModelFidelity(f64),
+    /// Always (Gauss-Newton); the cost is then not evaluated.
+    Always,
+}
+
+/// Driver settings; the default is GTSAM's `LevenbergMarquardtParams`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LmParams {
     /// Initial damping.
     pub lambda_initial: f64,
     /// Damping change factor.
     pub lambda_factor: f64,
-    /// Upper bound on lambda (stop when exceeded).
+    /// Upper bound on lambda (the run stops when it is reached).
     pub lambda_upper_bound: f64,
     /// Lower bound on lambda.
     pub lambda_lower_bound: f64,
-    /// Minimum ratio of actual to predicted decrease for a step to count.
-    pub min_model_fidelity: f64,
-    /// Maximum iterations.
+    /// When a step is taken.
+    pub acceptance: Acceptance,
+    /// Dampings tried per linearisation before the run stops.
+    pub dampings_per_iteration: usize,
+    /// Maximum iterations (linearisations).
     pub max_iterations: usize,
     /// Stop when the relative decrease is at most this.
     pub relative_error_tol: f64,
@@ -35,6 +81,8 @@ pub struct LmParams {
     pub absolute_error_tol: f64,
     /// Stop when the error is at most this.
     pub error_tol: f64,
+    /// Stop after a step shorter than this.
+    pub step_tol: f64,
 }
 
 impl Default for LmParams {
@@ -44,11 +92,51 @@ impl Default for LmParams {
             lambda_factor: 10.0,
             lambda_upper_bound: 1e5,
             lambda_lower_bound: 0.0,
-            min_model_fidelity: 1e-3,
+            acceptance: Acceptance::ModelFidelity(1e-3),
+            dampings_per_iteration: usize::MAX,
             max_iterations: 100,
             relative_error_tol: 1e-5,
             absolute_error_tol: 1e-5,
             error_tol: 0.0,
+            step_tol: 0.0,
+        }
+    }
+}
+
+impl LmParams {
+    /// Marquardt's rule for small problems: a step must lower the cost, `dampings` tries
+    /// per linearisation, lambda kept at or above `lambda_lower_bound`; the run ends after
+    /// `max_iterations` or when no damping lowers the cost.
+    pub fn marquardt(
+        lambda_initial: f64,
+        lambda_lower_bound: f64,
+        dampings: usize,
+        max_iterations: usize,
+    ) -> Self {
+        Self {
+            lambda_initial,
+            lambda_upper_bound: f64::INFINITY,
+            lambda_lower_bound,
+            acceptance: Acceptance::CostDecrease,
+            dampings_per_iteration: dampings,
+            max_iterations,
+            relative_error_tol: 0.0,
+            absolute_error_tol: 0.0,
+            ..Self::default()
+        }
+    }
+
+    /// Gauss-Newton: no damping, every solvable step taken, stopping after a step shorter
+    /// than `step_tol` or when the normal equations cannot be solved.
+    pub fn gauss_newton(max_iterations: usize, step_tol: f64) -> Self {
+        Self {
+            lambda_initial: 0.0,
+            lambda_upper_bound: f64::INFINITY,
+            acceptance: Acceptance::Always,
+            dampings_per_iteration: 1,
+            max_iterations,
+            step_tol,
+            ..Self::default()
         }
     }
 }
@@ -56,9 +144,9 @@ impl Default for LmParams {
 /// Outcome of a run.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LmSummary {
-    /// Error before optimising.
+    /// Cost before optimising (NaN under [`Acceptance::Always`]).
     pub initial_error: f64,
-    /// Error after.
+    /// Cost after.
     pub final_error: f64,
     /// Iterations (linearisations) performed.
     pub iterations: usize,
@@ -66,55 +154,50 @@ pub struct LmSummary {
     pub converged: bool,
 }
 
-/// Levenberg-Marquardt over a pose graph; call [`Lm::step`] repeatedly or [`Lm::optimize`].
-#[derive(Debug)]
-pub struct Lm<'g, G, const D: usize> {
-    graph: &'g mut PoseGraph<G, D>,
+/// The driver's state over one run: the variables, their cost and the damping.
+#[derive(Debug, Clone)]
+pub struct LevenbergMarquardt<S> {
+    state: S,
     params: LmParams,
     lambda: f64,
-    error: f64,
+    cost: f64,
+    initial_cost: f64,
     iterations: usize,
-    solver: Option<BlockCholesky<D>>,
     stopped: bool,
 }
 
-/// Block (i, j) of the lower triangle of H, stored in `pattern` order.
-fn block_index(
-    blocks: &mut std::collections::HashMap<(usize, usize), usize>,
-    order: &mut Vec<(usize, usize)>,
-    i: usize,
-    j: usize,
-) -> usize {
-    let key = if i >= j { (i, j) } else { (j, i) };
-    *blocks.entry(key).or_insert_with(|| {
-        order.push(key);
-        order.len() - 1
-    })
-}
-
-impl<'g, G: LieGroup<D>, const D: usize> Lm<'g, G, D> {
-    /// Prepares the optimiser; the graph needs at least one prior (an anchor).
-    pub fn new(graph: &'g mut PoseGraph<G, D>, params: LmParams) -> Result<Self, GraphError> {
-        if graph.priors.is_empty() {
-            return Err(GraphError::Setup(
-                "the graph has no prior: anchor a vertex (e.g. the first) or the problem is gauge-free and singular".into(),
-            ));
-        }
-        let error = graph.error();
-        Ok(Self {
-            graph,
+impl<S: Clone> LevenbergMarquardt<S> {
+    /// Starts a run from `state`.
+    pub fn new<P: LeastSquares<State = S>>(problem: &P, state: S, params: LmParams) -> Self {
+        let cost = if params.acceptance == Acceptance::Always {
+            f64::NAN
+        } else {
+            problem.cost(&state)
+        };
+        Self {
+            state,
             params,
             lambda: params.lambda_initial,
-            error,
+            cost,
+            initial_cost: cost,
             iterations: 0,
-            solver: None,
             stopped: false,
-        })
+        }
     }
 
-    /// Current error.
-    pub fn error(&self) -> f64 {
-        self.error
+    /// The current variables.
+    pub fn state(&self) -> &S {
+        &self.state
+    }
+
+    /// The variables, ending the run.
+    pub fn into_state(self) -> S {
+        self.state
+    }
+
+    /// The current cost.
+    pub fn cost(&self) -> f64 {
+        self.cost
     }
 
     /// Iterations done.
@@ -122,120 +205,36 @@ impl<'g, G: LieGroup<D>, const D: usize> Lm<'g, G, D> {
         self.iterations
     }
 
-    /// Linear system `H = J^T J`, `g = J^T r` (whitened, robust-reweighted), as dense blocks.
-    fn linearize(&self) -> (Blocks<D>, Vec<f64>) {
-        let n = self.graph.values.len();
-        let mut blocks = std::collections::HashMap::new();
-        let mut order = Vec::new();
-        let mut data: Vec<SMatrix<f64, D, D>> = Vec::new();
-        let mut g = vec![0.0; n * D];
-        let mut add =
-            |i: usize, j: usize, m: SMatrix<f64, D, D>, data: &mut Vec<SMatrix<f64, D, D>>| {
-                let k = block_index(&mut blocks, &mut order, i, j);
-                if k == data.len() {
-                    data.push(SMatrix::zeros());
-                }
-                // stored as (row block >= col block)
-                data[k] += if i >= j { m } else { m.transpose() };
-            };
-        for i in 0..n {
-            add(i, i, SMatrix::zeros(), &mut data);
-        }
-        let values = &self.graph.values;
-        for f in &self.graph.between {
-            let (e, hi, hj) = f.linearize(&values[f.i], &values[f.j]);
-            let (r, mut ji, mut jj) = (f.sqrt_info * e, f.sqrt_info * hi, f.sqrt_info * hj);
-            let w = f.kernel.weight(r.norm_squared()).sqrt();
-            let r: SVector<f64, D> = r * w;
-            ji *= w;
-            jj *= w;
-            add(f.i, f.i, ji.transpose() * ji, &mut data);
-            add(f.j, f.j, jj.transpose() * jj, &mut data);
-            add(f.j, f.i, jj.transpose() * ji, &mut data);
-            let (gi, gj) = (ji.transpose() * r, jj.transpose() * r);
-            for k in 0..D {
-                g[f.i * D + k] += gi[k];
-                g[f.j * D + k] += gj[k];
-            }
-        }
-        for p in &self.graph.priors {
-            let (e, h) = p.linearize(&values[p.i]);
-            let (r, j) = (p.sqrt_info * e, p.sqrt_info * h);
-            add(p.i, p.i, j.transpose() * j, &mut data);
-            let gi = j.transpose() * r;
-            for k in 0..D {
-                g[p.i * D + k] += gi[k];
-            }
-        }
-        (order.into_iter().zip(data).collect(), g)
+    fn tracks_cost(&self) -> bool {
+        self.params.acceptance != Acceptance::Always
     }
 
-    /// One iteration: linearise, then try dampings until a step is accepted or lambda
-    /// exceeds its bound. Returns false once the optimiser has stopped.
-    pub fn step(&mut self) -> bool {
+    /// One iteration: linearise, then try dampings until a step is taken. Returns false
+    /// once the run has stopped (no step taken).
+    pub fn step<P: LeastSquares<State = S>>(&mut self, problem: &mut P) -> bool {
         if self.stopped {
             return false;
         }
-        let (h, g) = self.linearize();
-        self.iterations += 1;
-        if self.solver.is_none() {
-            let blocks: Vec<(usize, usize)> = h.iter().map(|(k, _)| *k).collect();
-            self.solver = BlockCholesky::new(self.graph.values.len(), &blocks);
-        }
-        let Some(solver) = self.solver.as_mut() else {
+        let Some(system) = problem.linearize(&self.state) else {
             self.stopped = true;
             return false;
         };
-        let block_values: Vec<SMatrix<f64, D, D>> = h.iter().map(|(_, m)| *m).collect();
-        solver.set_blocks(&block_values);
-        loop {
-            let mut delta: Vec<f64> = g.iter().map(|v| -v).collect();
-            let solved = self
-                .solver
-                .as_mut()
-                .is_some_and(|s| s.solve(self.lambda, &mut delta));
-            if !solved {
+        self.iterations += 1;
+        for _ in 0..self.params.dampings_per_iteration {
+            let Some(step) = problem.solve(&system, self.lambda) else {
                 if !self.increase_lambda() {
                     return false;
                 }
                 continue;
-            }
-            // predicted decrease: -(g^T d + 0.5 d^T H d)
-            let mut hd = vec![0.0; delta.len()];
-            for &((bi, bj), m) in &h {
-                let di = SVector::<f64, D>::from_fn(|k, _| delta[bj * D + k]);
-                let hi = m * di;
-                for k in 0..D {
-                    hd[bi * D + k] += hi[k];
-                }
-                if bi != bj {
-                    let dj = SVector::<f64, D>::from_fn(|k, _| delta[bi * D + k]);
-                    let hj = m.transpose() * dj;
-                    for k in 0..D {
-                        hd[bj * D + k] += hj[k];
-                    }
-                }
-            }
-            let gd: f64 = g.iter().zip(&delta).map(|(a, b)| a * b).sum();
-            let dhd: f64 = hd.iter().zip(&delta).map(|(a, b)| a * b).sum();
-            let predicted = -(gd + 0.5 * dhd);
-            let new_values: Vec<G> = self
-                .graph
-                .values
-                .iter()
-                .enumerate()
-                .map(|(i, x)| x.retract(&SVector::<f64, D>::from_fn(|k, _| delta[i * D + k])))
-                .collect();
-            let new_error = self.graph.error_at(&new_values);
-            let actual = self.error - new_error;
-            let success = if predicted > f64::EPSILON * self.error {
-                actual / predicted > self.params.min_model_fidelity
-            } else {
-                actual >= 0.0
             };
-            if predicted >= 0.0 && success {
-                self.graph.values = new_values;
-                self.error = new_error;
+            let moved = problem.retract(&self.state, &step);
+            if self.params.acceptance == Acceptance::Always {
+                self.take(moved, f64::NAN, problem.step_norm(&step));
+                return true;
+            }
+            let moved_cost = problem.cost(&moved);
+            if self.accepts(problem, &system, &step, moved_cost) {
+                self.take(moved, moved_cost, problem.step_norm(&step));
                 self.lambda =
                     (self.lambda / self.params.lambda_factor).max(self.params.lambda_lower_bound);
                 return true;
@@ -243,6 +242,41 @@ impl<'g, G: LieGroup<D>, const D: usize> Lm<'g, G, D> {
             if !self.increase_lambda() {
                 return false;
             }
+        }
+        self.stopped = true;
+        false
+    }
+
+    fn accepts<P: LeastSquares<State = S>>(
+        &self,
+        problem: &P,
+        system: &P::System,
+        step: &P::Step,
+        moved_cost: f64,
+    ) -> bool {
+        let actual = self.cost - moved_cost;
+        match self.params.acceptance {
+            Acceptance::Always => true,
+            Acceptance::CostDecrease => moved_cost < self.cost,
+            Acceptance::ModelFidelity(fidelity) => {
+                let Some(predicted) = problem.predicted_decrease(system, step) else {
+                    return moved_cost < self.cost;
+                };
+                let success = if predicted > f64::EPSILON * self.cost {
+                    actual / predicted > fidelity
+                } else {
+                    actual >= 0.0
+                };
+                predicted >= 0.0 && success
+            }
+        }
+    }
+
+    fn take(&mut self, moved: S, moved_cost: f64, step_norm: f64) {
+        self.state = moved;
+        self.cost = moved_cost;
+        if step_norm < self.params.step_tol {
+            self.stopped = true;
         }
     }
 
@@ -255,26 +289,161 @@ impl<'g, G: LieGroup<D>, const D: usize> Lm<'g, G, D> {
         true
     }
 
-    /// Runs to convergence with GTSAM's stopping rules.
-    pub fn optimize(&mut self) -> LmSummary {
-        let initial_error = self.error;
-        let mut converged = self.error <= self.params.error_tol;
+    /// Iterates until a stopping rule or the iteration cap ends the run.
+    pub fn optimize<P: LeastSquares<State = S>>(&mut self, problem: &mut P) -> LmSummary {
+        let mut converged = self.tracks_cost() && self.cost <= self.params.error_tol;
         while !converged && self.iterations < self.params.max_iterations {
-            let prev = self.error;
-            if !self.step() {
+            let previous = self.cost;
+            if !self.step(problem) {
                 converged = true;
                 break;
             }
-            let decrease = prev - self.error;
-            converged = self.error <= self.params.error_tol
-                || decrease <= self.params.absolute_error_tol
-                || decrease / prev <= self.params.relative_error_tol;
+            if self.tracks_cost() {
+                let decrease = previous - self.cost;
+                converged = self.cost <= self.params.error_tol
+                    || decrease <= self.params.absolute_error_tol
+                    || decrease / previous <= self.params.relative_error_tol;
+            }
         }
         LmSummary {
-            initial_error,
-            final_error: self.error,
+            initial_error: self.initial_cost,
+            final_error: self.cost,
             iterations: self.iterations,
             converged,
         }
+    }
+}
+
+/// Runs `problem` from `state` to the end under `params`; the final variables and the run.
+pub fn minimise<P: LeastSquares>(
+    problem: &mut P,
+    state: P::State,
+    params: LmParams,
+) -> (P::State, LmSummary) {
+    let mut lm = LevenbergMarquardt::new(problem, state, params);
+    let summary = lm.optimize(problem);
+    (lm.into_state(), summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Rosenbrock's function as residuals `(10 (y - x^2), 1 - x)`, damped by `lambda I`.
+    struct Rosenbrock;
+
+    impl LeastSquares for Rosenbrock {
+        type State = [f64; 2];
+        type System = ([[f64; 2]; 2], [f64; 2]);
+        type Step = [f64; 2];
+
+        fn cost(&self, s: &[f64; 2]) -> f64 {
+            0.5 * ((10.0 * (s[1] - s[0] * s[0])).powi(2) + (1.0 - s[0]).powi(2))
+        }
+        fn linearize(&mut self, s: &[f64; 2]) -> Option<Self::System> {
+            let r = [10.0 * (s[1] - s[0] * s[0]), 1.0 - s[0]];
+            let j = [[-20.0 * s[0], 10.0], [-1.0, 0.0]];
+            let mut h = [[0.0; 2]; 2];
+            let mut g = [0.0; 2];
+            for k in 0..2 {
+                for a in 0..2 {
+                    g[a] += j[k][a] * r[k];
+                    for b in 0..2 {
+                        h[a][b] += j[k][a] * j[k][b];
+                    }
+                }
+            }
+            Some((h, g))
+        }
+        fn solve(&mut self, (h, g): &Self::System, lambda: f64) -> Option<[f64; 2]> {
+            let (a, b, d) = (h[0][0] + lambda, h[0][1], h[1][1] + lambda);
+            let det = a * d - b * b;
+            (det > 0.0).then(|| [-(d * g[0] - b * g[1]) / det, -(a * g[1] - b * g[0]) / det])
+        }
+        fn retract(&self, s: &[f64; 2], d: &[f64; 2]) -> [f64; 2] {
+            [s[0] + d[0], s[1] + d[1]]
+        }
+        fn predicted_decrease(&self, (h, g): &Self::System, d: &[f64; 2]) -> Option<f64> {
+            let gd = g[0] * d[0] + g[1] * d[1];
+            let dhd =
+                d[0] * (h[0][0] * d[0] + h[0][1] * d[1]) + d[1] * (h[1][0] * d[0] + h[1][1] * d[1]);
+            Some(-(gd + 0.5 * dhd))
+        }
+        fn step_norm(&self, d: &[f64; 2]) -> f64 {
+            d[0].hypot(d[1])
+        }
+    }
+
+    #[test]
+    fn every_rule_reaches_the_minimum_of_rosenbrock() {
+        for params in [
+            LmParams {
+                relative_error_tol: 1e-12,
+                absolute_error_tol: 1e-14,
+                ..LmParams::default()
+            },
+            LmParams::marquardt(1e-3, 1e-9, 6, 200),
+            LmParams::gauss_newton(50, 1e-12),
+        ] {
+            let (s, run) = minimise(&mut Rosenbrock, [-1.2, 1.0], params);
+            assert!(
+                (s[0] - 1.0).abs() < 1e-6 && (s[1] - 1.0).abs() < 1e-6,
+                "{params:?}: {s:?} after {run:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_cost_decrease_rule_never_raises_the_cost() {
+        let mut problem = Rosenbrock;
+        let params = LmParams::marquardt(1e-3, 1e-9, 6, 200);
+        let mut lm = LevenbergMarquardt::new(&problem, [-1.2, 1.0], params);
+        let mut before = lm.cost();
+        while lm.step(&mut problem) {
+            assert!(lm.cost() < before);
+            before = lm.cost();
+        }
+        assert!(lm.iterations() > 5, "{}", lm.iterations());
+    }
+
+    /// Normal equations that are never positive definite.
+    struct Singular(usize);
+
+    impl LeastSquares for Singular {
+        type State = [f64; 2];
+        type System = ();
+        type Step = [f64; 2];
+        fn cost(&self, s: &[f64; 2]) -> f64 {
+            Rosenbrock.cost(s)
+        }
+        fn linearize(&mut self, _: &[f64; 2]) -> Option<()> {
+            Some(())
+        }
+        fn solve(&mut self, _: &(), _: f64) -> Option<[f64; 2]> {
+            self.0 += 1;
+            None
+        }
+        fn retract(&self, s: &[f64; 2], _: &[f64; 2]) -> [f64; 2] {
+            *s
+        }
+    }
+
+    #[test]
+    fn the_damping_bound_and_the_tries_per_iteration_end_a_run() {
+        // GTSAM: lambda from 1e-5 by factors of 10 reaches 1e5 after ten tries
+        let mut problem = Singular(0);
+        let (_, run) = minimise(&mut problem, [0.0, 0.0], LmParams::default());
+        assert_eq!((problem.0, run.iterations, run.converged), (10, 1, true));
+        let mut lm = LevenbergMarquardt::new(&problem, [0.0, 0.0], LmParams::default());
+        assert!(!lm.step(&mut Singular(0)));
+        assert!(!lm.step(&mut problem), "a stopped run takes no more steps");
+        // Marquardt: as many tries as dampings allowed
+        let mut problem = Singular(0);
+        minimise(
+            &mut problem,
+            [0.0, 0.0],
+            LmParams::marquardt(1e-3, 1e-9, 6, 20),
+        );
+        assert_eq!(problem.0, 6);
     }
 }

@@ -1,10 +1,13 @@
-//! Local bundle adjustment over a window of keyframes: Levenberg-Marquardt on Huber-robust
-//! reprojection errors, with the landmarks eliminated by the Schur complement (each point's
+//! Local bundle adjustment over a window of keyframes: the one Levenberg-Marquardt driver
+//! (Marquardt's rule) on Huber-robust reprojection errors, with the landmarks eliminated by the Schur complement (each point's
 //! 3x3 block is inverted; the reduced camera system is dense because windows are small).
 //! Keyframes marked fixed fix the gauge (pose and, with two of them, the monocular scale).
 
-use nalgebra::{DMatrix, DVector, Matrix2x3, Matrix3, SMatrix, Vector2, Vector3};
-use supermvo_geometry::{skew, so3_exp, Mat3, Vec3};
+use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, Vector3};
+use supermvo_geometry::{so3_exp, Mat3, Vec3};
+use supermvo_optim::lm::{minimise, LeastSquares, LmParams};
+use supermvo_optim::projection::{reprojection, reprojection_residual};
+use supermvo_optim::Kernel;
 
 /// One observation: keyframe index (into the window), point index, normalised bearing.
 #[derive(Debug, Clone, Copy)]
@@ -32,41 +35,169 @@ pub struct LocalBa {
     pub huber: f64,
 }
 
-fn residual(r: &Mat3, t: &Vec3, p: &Vec3, b: &Vec3) -> Option<(Vector2<f64>, Vector3<f64>)> {
-    let q = r * p + t;
-    (q.z > 1e-6).then(|| {
-        (
-            Vector2::new(q.x / q.z - b.x / b.z, q.y / q.z - b.y / b.z),
-            q,
-        )
-    })
+type Poses = Vec<(Mat3, Vec3)>;
+
+/// The normal equations of a window: camera blocks (dense, free keyframes only), point
+/// blocks, and the camera-point blocks per observation.
+struct Normal {
+    hcc: DMatrix<f64>,
+    gc: DVector<f64>,
+    hpp: Vec<Matrix3<f64>>,
+    gp: Vec<Vector3<f64>>,
+    /// `(camera slot, point, 6x3 block)` per observation of a free keyframe.
+    hcp: Vec<(usize, usize, SMatrix<f64, 6, 3>)>,
+}
+
+/// A step: the free keyframes' tangent updates, and each point's update.
+struct Step {
+    cameras: DVector<f64>,
+    points: Vec<Vector3<f64>>,
+}
+
+/// The window as a problem of the one least-squares driver, on `(poses, points)`.
+struct Window<'a> {
+    ba: &'a LocalBa,
+    /// Each keyframe's slot among the free ones (`usize::MAX` if fixed).
+    slot: Vec<usize>,
+    free: Vec<usize>,
+}
+
+impl LeastSquares for Window<'_> {
+    type State = (Poses, Vec<Vec3>);
+    type System = Normal;
+    type Step = Step;
+
+    fn cost(&self, (poses, points): &Self::State) -> f64 {
+        self.ba.cost(poses, points)
+    }
+
+    fn linearize(&mut self, (poses, points): &Self::State) -> Option<Normal> {
+        let (np, nc) = (points.len(), self.free.len() * 6);
+        let mut n = Normal {
+            hcc: DMatrix::zeros(nc, nc),
+            gc: DVector::zeros(nc),
+            hpp: vec![Matrix3::zeros(); np],
+            gp: vec![Vector3::zeros(); np],
+            hcp: Vec::new(),
+        };
+        let kernel = Kernel::Huber(self.ba.huber);
+        for o in &self.ba.observations {
+            let (r, t) = &poses[o.kf];
+            let Some(lin) = reprojection(r, t, &points[o.point], &o.bearing) else {
+                continue;
+            };
+            let (e, jp) = (lin.residual, lin.d_point);
+            let w = kernel.weight(e.norm_squared());
+            n.hpp[o.point] += w * jp.transpose() * jp;
+            n.gp[o.point] += w * jp.transpose() * e;
+            if self.slot[o.kf] == usize::MAX {
+                continue;
+            }
+            let jc = lin.d_pose;
+            let s = self.slot[o.kf] * 6;
+            let hb = w * jc.transpose() * jc;
+            let gb = w * jc.transpose() * e;
+            for a in 0..6 {
+                n.gc[s + a] += gb[a];
+                for b in 0..6 {
+                    n.hcc[(s + a, s + b)] += hb[(a, b)];
+                }
+            }
+            n.hcp
+                .push((self.slot[o.kf], o.point, w * jc.transpose() * jp));
+        }
+        Some(n)
+    }
+
+    /// Damped by `lambda diag(H)`; the points eliminated by the Schur complement.
+    fn solve(&mut self, n: &Normal, lambda: f64) -> Option<Step> {
+        let (np, nc) = (n.hpp.len(), n.gc.len());
+        // damped point blocks and their inverses
+        let hpp_inv: Vec<Matrix3<f64>> = n
+            .hpp
+            .iter()
+            .map(|h| {
+                let mut d = *h;
+                for k in 0..3 {
+                    d[(k, k)] += lambda * h[(k, k)] + 1e-12;
+                }
+                d.try_inverse().unwrap_or_else(Matrix3::zeros)
+            })
+            .collect();
+        // Schur complement on the cameras
+        let mut s = n.hcc.clone();
+        for k in 0..nc {
+            s[(k, k)] += lambda * n.hcc[(k, k)] + 1e-12;
+        }
+        let mut rhs = -n.gc.clone();
+        let mut by_point: Vec<Vec<(usize, SMatrix<f64, 6, 3>)>> = vec![Vec::new(); np];
+        for &(c, p, ref m) in &n.hcp {
+            by_point[p].push((c, *m));
+        }
+        for p in 0..np {
+            let hi = hpp_inv[p];
+            for &(c1, m1) in &by_point[p] {
+                let m1hi = m1 * hi;
+                let r1 = m1hi * n.gp[p];
+                for k in 0..6 {
+                    rhs[c1 * 6 + k] += r1[k];
+                }
+                for &(c2, m2) in &by_point[p] {
+                    let blk = m1hi * m2.transpose();
+                    for a in 0..6 {
+                        for b in 0..6 {
+                            s[(c1 * 6 + a, c2 * 6 + b)] -= blk[(a, b)];
+                        }
+                    }
+                }
+            }
+        }
+        let cameras = if nc == 0 {
+            DVector::zeros(0)
+        } else {
+            s.cholesky()?.solve(&rhs)
+        };
+        // back-substitute the points
+        let points = (0..np)
+            .map(|p| {
+                let mut r = -n.gp[p];
+                for &(c, m) in &by_point[p] {
+                    let d = SMatrix::<f64, 6, 1>::from_fn(|k, _| cameras[c * 6 + k]);
+                    r -= m.transpose() * d;
+                }
+                hpp_inv[p] * r
+            })
+            .collect();
+        Some(Step { cameras, points })
+    }
+
+    fn retract(&self, (poses, points): &Self::State, step: &Step) -> Self::State {
+        let mut new_poses = poses.clone();
+        for (sidx, &k) in self.free.iter().enumerate() {
+            let d = SMatrix::<f64, 6, 1>::from_fn(|a, _| step.cameras[sidx * 6 + a]);
+            let dr = so3_exp(&Vec3::new(d[0], d[1], d[2]));
+            let (r, t) = poses[k];
+            new_poses[k] = (dr * r, dr * t + Vec3::new(d[3], d[4], d[5]));
+        }
+        let new_points = points
+            .iter()
+            .zip(&step.points)
+            .map(|(p, d)| p + d)
+            .collect();
+        (new_poses, new_points)
+    }
 }
 
 impl LocalBa {
-    fn huber_weight(&self, e2: f64) -> f64 {
-        let e = e2.sqrt();
-        if e <= self.huber {
-            1.0
-        } else {
-            self.huber / e
-        }
-    }
-
-    /// Robust cost.
+    /// Robust cost (a point behind its camera counts 1).
     pub fn cost(&self, poses: &[(Mat3, Vec3)], points: &[Vec3]) -> f64 {
+        let kernel = Kernel::Huber(self.huber);
         self.observations
             .iter()
             .map(|o| {
                 let (r, t) = &poses[o.kf];
-                match residual(r, t, &points[o.point], &o.bearing) {
-                    Some((e, _)) => {
-                        let (s2, k) = (e.norm_squared(), self.huber);
-                        if s2.sqrt() <= k {
-                            0.5 * s2
-                        } else {
-                            k * s2.sqrt() - 0.5 * k * k
-                        }
-                    }
+                match reprojection_residual(r, t, &points[o.point], &o.bearing) {
+                    Some(e) => kernel.loss(e.norm_squared()),
                     None => 1.0,
                 }
             })
@@ -80,130 +211,19 @@ impl LocalBa {
         for (s, &k) in free.iter().enumerate() {
             slot[k] = s;
         }
-        let nc = free.len() * 6;
-        let initial = self.cost(&self.poses, &self.points);
-        let mut current = initial;
-        let mut lambda = 1e-4;
-        for _ in 0..iterations {
-            let np = self.points.len();
-            let mut hcc = DMatrix::<f64>::zeros(nc, nc);
-            let mut gc = DVector::<f64>::zeros(nc);
-            let mut hpp = vec![Matrix3::<f64>::zeros(); np];
-            let mut gp = vec![Vector3::<f64>::zeros(); np];
-            // Hcp blocks per observation (6x3)
-            let mut hcp: Vec<(usize, usize, SMatrix<f64, 6, 3>)> = Vec::new();
-            for o in &self.observations {
-                let (r, t) = &self.poses[o.kf];
-                let Some((e, q)) = residual(r, t, &self.points[o.point], &o.bearing) else {
-                    continue;
-                };
-                let w = self.huber_weight(e.norm_squared());
-                let (iz, iz2) = (1.0 / q.z, 1.0 / (q.z * q.z));
-                let dpi = Matrix2x3::new(iz, 0.0, -q.x * iz2, 0.0, iz, -q.y * iz2);
-                let jp = dpi * r;
-                hpp[o.point] += w * jp.transpose() * jp;
-                gp[o.point] += w * jp.transpose() * e;
-                if slot[o.kf] == usize::MAX {
-                    continue;
-                }
-                let mut dq = SMatrix::<f64, 3, 6>::zeros();
-                dq.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-skew(&q)));
-                dq.fixed_view_mut::<3, 3>(0, 3).copy_from(&Mat3::identity());
-                let jc = dpi * dq;
-                let s = slot[o.kf] * 6;
-                let hb = w * jc.transpose() * jc;
-                let gb = w * jc.transpose() * e;
-                for a in 0..6 {
-                    gc[s + a] += gb[a];
-                    for b in 0..6 {
-                        hcc[(s + a, s + b)] += hb[(a, b)];
-                    }
-                }
-                hcp.push((slot[o.kf], o.point, w * jc.transpose() * jp));
-            }
-            let mut improved = false;
-            for _ in 0..6 {
-                // damped point blocks and their inverses
-                let mut hpp_inv = Vec::with_capacity(np);
-                for h in &hpp {
-                    let mut d = *h;
-                    for k in 0..3 {
-                        d[(k, k)] += lambda * h[(k, k)] + 1e-12;
-                    }
-                    hpp_inv.push(d.try_inverse().unwrap_or_else(Matrix3::zeros));
-                }
-                // Schur complement on the cameras
-                let mut s = hcc.clone();
-                for k in 0..nc {
-                    s[(k, k)] += lambda * hcc[(k, k)] + 1e-12;
-                }
-                let mut rhs = -gc.clone();
-                let mut by_point: Vec<Vec<(usize, SMatrix<f64, 6, 3>)>> = vec![Vec::new(); np];
-                for &(c, p, ref m) in &hcp {
-                    by_point[p].push((c, *m));
-                }
-                for p in 0..np {
-                    let hi = hpp_inv[p];
-                    for &(c1, m1) in &by_point[p] {
-                        let m1hi = m1 * hi;
-                        let r1 = m1hi * gp[p];
-                        for k in 0..6 {
-                            rhs[c1 * 6 + k] += r1[k];
-                        }
-                        for &(c2, m2) in &by_point[p] {
-                            let blk = m1hi * m2.transpose();
-                            for a in 0..6 {
-                                for b in 0..6 {
-                                    s[(c1 * 6 + a, c2 * 6 + b)] -= blk[(a, b)];
-                                }
-                            }
-                        }
-                    }
-                }
-                let dc = if nc == 0 {
-                    DVector::zeros(0)
-                } else {
-                    match s.clone().cholesky() {
-                        Some(ch) => ch.solve(&rhs),
-                        None => {
-                            lambda *= 10.0;
-                            continue;
-                        }
-                    }
-                };
-                // back-substitute the points
-                let mut new_points = self.points.clone();
-                for p in 0..np {
-                    let mut r = -gp[p];
-                    for &(c, m) in &by_point[p] {
-                        let d = SMatrix::<f64, 6, 1>::from_fn(|k, _| dc[c * 6 + k]);
-                        r -= m.transpose() * d;
-                    }
-                    new_points[p] += hpp_inv[p] * r;
-                }
-                let mut new_poses = self.poses.clone();
-                for (sidx, &k) in free.iter().enumerate() {
-                    let d = SMatrix::<f64, 6, 1>::from_fn(|a, _| dc[sidx * 6 + a]);
-                    let dr = so3_exp(&Vec3::new(d[0], d[1], d[2]));
-                    let (r, t) = self.poses[k];
-                    new_poses[k] = (dr * r, dr * t + Vec3::new(d[3], d[4], d[5]));
-                }
-                let c2 = self.cost(&new_poses, &new_points);
-                if c2 < current {
-                    self.poses = new_poses;
-                    self.points = new_points;
-                    current = c2;
-                    lambda = (lambda * 0.1).max(1e-9);
-                    improved = true;
-                    break;
-                }
-                lambda *= 10.0;
-            }
-            if !improved {
-                break;
-            }
-        }
-        (initial, current)
+        let start = (
+            std::mem::take(&mut self.poses),
+            std::mem::take(&mut self.points),
+        );
+        let mut window = Window {
+            ba: self,
+            slot,
+            free,
+        };
+        let params = LmParams::marquardt(1e-4, 1e-9, 6, iterations);
+        let ((poses, points), run) = minimise(&mut window, start, params);
+        (self.poses, self.points) = (poses, points);
+        (run.initial_error, run.final_error)
     }
 }
 

@@ -83,6 +83,7 @@ fn libraries_do_not_pull_in_what_they_do_not_use() {
     // the walk does see the edges it checks for (so the rules below can fail)
     assert!(reachable(&graph, "supermvo-inference").contains("ort"));
     assert!(reachable(&graph, "supermvo-plot").contains("plotters"));
+    assert!(reachable(&graph, "supermvo-geometry").contains("supermvo-optim"));
     // (crate, what it must not reach, why)
     let rules = [
         (
@@ -99,6 +100,11 @@ fn libraries_do_not_pull_in_what_they_do_not_use() {
             "supermvo",
             "supermvo-services",
             "the CLI and the stage processes share supermvo-pipeline; the CLI starts the stage binaries, it does not link their crate",
+        ),
+        (
+            "supermvo-optim",
+            "supermvo-geometry",
+            "the one least-squares core is at the bottom: the refinements in geometry, bundle adjustment and the pose graphs build on it",
         ),
         (
             "supermvo-features",
