@@ -195,11 +195,14 @@ fn multiprocess_lossless_equals_inprocess_bit_for_bit_on_kitti_03() {
         .collect();
     // every frame's pose, those of the frames seen while initialising (posed later, with
     // the frame that initialised) included
-    let mut poses: Vec<Option<[f64; 12]>> = outputs.iter().map(|o| o.pose).collect();
+    let mut poses: Vec<Option<[f64; 12]>> = outputs
+        .iter()
+        .map(|o| o.t_world_cam.map(|p| p.to_row_major_3x4()))
+        .collect();
     let late: Vec<_> = outputs.iter().flat_map(|o| o.backfilled.iter()).collect();
     assert!(!late.is_empty(), "03's first frames are posed late");
     for l in late {
-        poses[l.index] = Some(l.pose);
+        poses[l.index] = Some(l.t_world_cam.to_row_major_3x4());
     }
     for (i, (rec, out)) in records.iter().zip(&outputs).enumerate() {
         assert_eq!(rec.seq, i as u64);

@@ -74,6 +74,38 @@ impl Pose {
         self.inverse().compose(other)
     }
 
+    /// `self * p`: a point moved from the pose's source frame to its target frame.
+    pub fn transform(&self, p: &Vec3) -> Vec3 {
+        self.r * p + self.t
+    }
+
+    /// The pose of a 3x4 row-major matrix `[R | t]` (the KITTI and wire layout).
+    pub fn from_row_major_3x4(m: &[f64; 12]) -> Self {
+        Self {
+            r: Mat3::new(m[0], m[1], m[2], m[4], m[5], m[6], m[8], m[9], m[10]),
+            t: Vec3::new(m[3], m[7], m[11]),
+        }
+    }
+
+    /// The 3x4 row-major matrix `[R | t]`.
+    pub fn to_row_major_3x4(&self) -> [f64; 12] {
+        let (r, t) = (&self.r, &self.t);
+        [
+            r[(0, 0)],
+            r[(0, 1)],
+            r[(0, 2)],
+            t.x,
+            r[(1, 0)],
+            r[(1, 1)],
+            r[(1, 2)],
+            t.y,
+            r[(2, 0)],
+            r[(2, 1)],
+            r[(2, 2)],
+            t.z,
+        ]
+    }
+
     /// Homogeneous 4x4 matrix.
     pub fn to_matrix(&self) -> Matrix4<f64> {
         let mut m = Matrix4::identity();
@@ -101,6 +133,13 @@ impl Pose {
     }
 }
 
+/// Serialised as its 3x4 row-major matrix.
+impl serde::Serialize for Pose {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        self.to_row_major_3x4().serialize(serializer)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -118,5 +157,11 @@ mod tests {
             epsilon = 1e-12
         );
         assert!(Pose::from_quaternion(0.0, 0.0, 0.0, 0.0, Vec3::zeros()).is_none());
+        assert_eq!(Pose::from_row_major_3x4(&a.to_row_major_3x4()), a);
+        assert_relative_eq!(
+            a.transform(&Vec3::new(0.5, -1.0, 2.0)),
+            (a.to_matrix() * nalgebra::Vector4::new(0.5, -1.0, 2.0, 1.0)).xyz(),
+            epsilon = 1e-12
+        );
     }
 }

@@ -10,7 +10,6 @@
 
 use crate::common::{StageArgs, StageContext};
 use crate::inbox::Inbox;
-use crate::tracking::pose_of;
 use anyhow::{Context, Result};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -158,7 +157,7 @@ pub fn write_outputs(out: &Path, records: &[Record]) -> Result<Vec<usize>> {
     let frames: Vec<(f64, Option<Pose>)> = with_corrections(out, records)
         .iter()
         .filter(|r| r.status != "end")
-        .map(|r| (r.stamp, r.pose.as_ref().map(pose_of)))
+        .map(|r| (r.stamp, r.pose.as_ref().map(Pose::from_row_major_3x4)))
         .collect();
     write_trajectories(out, &frames)
 }

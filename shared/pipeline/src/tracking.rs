@@ -9,6 +9,7 @@ use anyhow::Result;
 use std::time::Duration;
 use supermvo_config::PipelineConfig;
 use supermvo_dataset::Sequence;
+use supermvo_geometry::Pose;
 use supermvo_inference::{Features, FrameView, Matches};
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
 use supermvo_messages::iceoryx2::prelude::*;
@@ -65,8 +66,11 @@ pub fn pose_msg(o: &FrameOutput) -> PoseMsg {
             TrackingState::Tracking => 1,
             TrackingState::Lost => 2,
         },
-        has_pose: o.pose.is_some() as u32,
-        t_world_cam: o.pose.unwrap_or_default(),
+        has_pose: o.t_world_cam.is_some() as u32,
+        t_world_cam: o
+            .t_world_cam
+            .map(|p| p.to_row_major_3x4())
+            .unwrap_or_default(),
         keyframe: o.keyframe as u32,
         keypoints: o.keypoints as u32,
         matches: o.matches as u32,
@@ -81,13 +85,11 @@ pub fn pose_msg(o: &FrameOutput) -> PoseMsg {
                 .get(i)
                 .map_or_else(Default::default, |l| BackfilledPose {
                     seq: l.index as u64,
-                    t_world_cam: l.pose,
+                    t_world_cam: l.t_world_cam.to_row_major_3x4(),
                 })
         }),
     }
 }
-
-pub use supermvo_vo::tracker::pose_of;
 
 /// Runs the tracking stage until SIGTERM.
 pub fn run(args: &StageArgs) -> Result<()> {
@@ -137,7 +139,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
             start = b.seq + 1;
             if b.has_pose == 1 {
                 let scale = (b.scale > 0.0).then_some(b.scale);
-                tracker.restore(&pose_of(&b.t_world_cam), scale);
+                tracker.restore(&Pose::from_row_major_3x4(&b.t_world_cam), scale);
             }
         }
     }

@@ -4,7 +4,7 @@
 //! Keyframes marked fixed fix the gauge (pose and, with two of them, the monocular scale).
 
 use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, Vector3};
-use supermvo_geometry::{so3_exp, Mat3, Vec3};
+use supermvo_geometry::{so3_exp, Pose, Vec3};
 use supermvo_optim::lm::{minimise, LeastSquares, LmParams};
 use supermvo_optim::projection::{reprojection, reprojection_residual};
 use supermvo_optim::Kernel;
@@ -24,7 +24,7 @@ pub struct Observation {
 #[derive(Debug, Clone)]
 pub struct LocalBa {
     /// `T_cam_world` of each keyframe.
-    pub poses: Vec<(Mat3, Vec3)>,
+    pub poses: Vec<Pose>,
     /// Whether each keyframe is held fixed.
     pub fixed: Vec<bool>,
     /// Points in the world frame.
@@ -35,7 +35,7 @@ pub struct LocalBa {
     pub huber: f64,
 }
 
-type Poses = Vec<(Mat3, Vec3)>;
+type Poses = Vec<Pose>;
 
 /// The normal equations of a window: camera blocks (dense, free keyframes only), point
 /// blocks, and the camera-point blocks per observation.
@@ -82,7 +82,7 @@ impl LeastSquares for Window<'_> {
         };
         let kernel = Kernel::Huber(self.ba.huber);
         for o in &self.ba.observations {
-            let (r, t) = &poses[o.kf];
+            let Pose { r, t } = &poses[o.kf];
             let Some(lin) = reprojection(r, t, &points[o.point], &o.bearing) else {
                 continue;
             };
@@ -176,8 +176,8 @@ impl LeastSquares for Window<'_> {
         for (sidx, &k) in self.free.iter().enumerate() {
             let d = SMatrix::<f64, 6, 1>::from_fn(|a, _| step.cameras[sidx * 6 + a]);
             let dr = so3_exp(&Vec3::new(d[0], d[1], d[2]));
-            let (r, t) = poses[k];
-            new_poses[k] = (dr * r, dr * t + Vec3::new(d[3], d[4], d[5]));
+            let Pose { r, t } = poses[k];
+            new_poses[k] = Pose::new(dr * r, dr * t + Vec3::new(d[3], d[4], d[5]));
         }
         let new_points = points
             .iter()
@@ -190,12 +190,12 @@ impl LeastSquares for Window<'_> {
 
 impl LocalBa {
     /// Robust cost (a point behind its camera counts 1).
-    pub fn cost(&self, poses: &[(Mat3, Vec3)], points: &[Vec3]) -> f64 {
+    pub fn cost(&self, poses: &[Pose], points: &[Vec3]) -> f64 {
         let kernel = Kernel::Huber(self.huber);
         self.observations
             .iter()
             .map(|o| {
-                let (r, t) = &poses[o.kf];
+                let Pose { r, t } = &poses[o.kf];
                 match reprojection_residual(r, t, &points[o.point], &o.bearing) {
                     Some(e) => kernel.loss(e.norm_squared()),
                     None => 1.0,
@@ -235,9 +235,9 @@ mod tests {
     fn recovers_perturbed_window() {
         // 4 cameras moving forward, 60 points; perturb free poses and points, BA must
         // bring the reprojection cost back to (near) zero
-        let poses: Vec<(Mat3, Vec3)> = (0..4)
+        let poses: Vec<Pose> = (0..4)
             .map(|k| {
-                (
+                Pose::new(
                     so3_exp(&Vec3::new(0.0, 0.02 * k as f64, 0.0)),
                     Vec3::new(0.1 * k as f64, 0.0, -(k as f64)),
                 )
@@ -259,7 +259,7 @@ mod tests {
             ));
         }
         let mut obs = Vec::new();
-        for (k, (r, t)) in poses.iter().enumerate() {
+        for (k, Pose { r, t }) in poses.iter().enumerate() {
             for (i, p) in points.iter().enumerate() {
                 let q = r * p + t;
                 obs.push(Observation {
@@ -270,7 +270,7 @@ mod tests {
             }
         }
         let mut noisy_poses = poses.clone();
-        for (r, t) in noisy_poses.iter_mut().skip(2) {
+        for Pose { r, t } in noisy_poses.iter_mut().skip(2) {
             *r = so3_exp(&Vec3::new(0.003, -0.002, 0.001)) * *r;
             *t += Vec3::new(0.05, -0.03, 0.04);
         }
@@ -288,9 +288,9 @@ mod tests {
         };
         let (c0, c1) = ba.solve(20);
         assert!(c1 < 1e-6 * c0, "{c0} -> {c1}");
-        for (k, (r, t)) in ba.poses.iter().enumerate() {
-            assert!(supermvo_geometry::rotation_angle(&(r.transpose() * poses[k].0)) < 1e-6);
-            assert!((t - poses[k].1).norm() < 1e-5, "pose {k}");
+        for (k, Pose { r, t }) in ba.poses.iter().enumerate() {
+            assert!(supermvo_geometry::rotation_angle(&(r.transpose() * poses[k].r)) < 1e-6);
+            assert!((t - poses[k].t).norm() < 1e-5, "pose {k}");
         }
     }
 }

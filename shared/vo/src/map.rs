@@ -7,7 +7,7 @@
 
 use std::collections::BTreeMap;
 use supermvo_geometry::essential::{triangulate_checked, Triangulated};
-use supermvo_geometry::{Mat3, Vec3};
+use supermvo_geometry::{Mat3, Pose, Vec3};
 
 /// A map point with every keyframe observation `(keyframe id, bearing)` of it and the
 /// descriptor of its latest observation (for the local-map search).
@@ -30,7 +30,7 @@ pub(crate) struct Map {
     pub(crate) tracks: BTreeMap<usize, Vec<(usize, Vec3)>>,
     pub(crate) next_track: usize,
     /// `T_cam_world` of every keyframe, by id (refined by the local BA).
-    pub(crate) keyframe_poses: Vec<(Mat3, Vec3)>,
+    pub(crate) keyframe_poses: Vec<Pose>,
     /// Keypoints and descriptors of the most recent keyframes, by id, kept for the
     /// triangulation against later keyframes (`tracker::covisible_triangulation`; empty when
     /// it is off).
@@ -117,7 +117,7 @@ impl Map {
     pub(crate) fn triangulate_observations(&self, obs: &[(usize, Vec3)]) -> Option<Triangulated> {
         let views = obs
             .iter()
-            .map(|(k, b)| self.keyframe_poses.get(*k).map(|&(r, t)| (r, t, *b)))
+            .map(|(k, b)| self.keyframe_poses.get(*k).map(|p| (p.r, p.t, *b)))
             .collect::<Option<Vec<(Mat3, Vec3, Vec3)>>>()?;
         triangulate_checked(&views, 2.0 / self.focal)
     }
@@ -145,9 +145,9 @@ impl Map {
         let oldest = (id + 1).saturating_sub(keep);
         self.keyframe_keypoints.retain(|&k, _| k >= oldest);
     }
-    /// Registers a keyframe pose and returns its id.
-    pub(crate) fn new_keyframe_id(&mut self, r: Mat3, t: Vec3) -> usize {
-        self.keyframe_poses.push((r, t));
+    /// Registers a keyframe's `T_cam_world` and returns its id.
+    pub(crate) fn new_keyframe_id(&mut self, t_cam_world: Pose) -> usize {
+        self.keyframe_poses.push(t_cam_world);
         self.keyframe_poses.len() - 1
     }
 }
@@ -160,8 +160,8 @@ mod tests {
     const F: f64 = 700.0;
 
     /// `T_cam_world` of an unrotated camera centred at `c`.
-    fn at(c: Vec3) -> (Mat3, Vec3) {
-        (Mat3::identity(), -c)
+    fn at(c: Vec3) -> Pose {
+        Pose::new(Mat3::identity(), -c)
     }
 
     /// Bearing of world point `p` seen from the camera centred at `c`, moved by `(du, dv)` px.
@@ -181,8 +181,7 @@ mod tests {
             Vec3::new(3.0, 0.0, 0.0),
         ];
         for c in centres {
-            let (r, t) = at(c);
-            tr.new_keyframe_id(r, t);
+            tr.new_keyframe_id(at(c));
         }
         let truth = Vec3::new(1.0, 0.5, 20.0);
         let obs = vec![
@@ -191,7 +190,7 @@ mod tests {
         ];
         let views: Vec<_> = obs
             .iter()
-            .map(|(k, b)| (tr.keyframe_poses[*k].0, tr.keyframe_poses[*k].1, *b))
+            .map(|(k, b)| (tr.keyframe_poses[*k].r, tr.keyframe_poses[*k].t, *b))
             .collect();
         let p = triangulate_checked(&views, 2.0 / F).unwrap().point;
         let id = tr.add_landmark(p, obs, &[0.0; 4]);
@@ -199,8 +198,15 @@ mod tests {
     }
 
     fn reprojection_px(tr: &Map, id: usize, kf: usize, b: &Vec3) -> f64 {
-        let (r, t) = tr.keyframe_poses[kf];
-        supermvo_geometry::pnp::reprojection_sq(&r, &t, &tr.landmarks[&id].p, b).sqrt() * F
+        let t_cam_world = tr.keyframe_poses[kf];
+        supermvo_geometry::pnp::reprojection_sq(
+            &t_cam_world.r,
+            &t_cam_world.t,
+            &tr.landmarks[&id].p,
+            b,
+        )
+        .sqrt()
+            * F
     }
 
     #[test]

@@ -2,7 +2,7 @@
 //! and the loop closer's feedback to the tracker that the daemon uses too.
 
 use crate::stage::Stage;
-use crate::tracker::{output_pose, pose_of, FrameInput, FrameMeta, FrameOutput, Tracker};
+use crate::tracker::{FrameInput, FrameMeta, FrameOutput, Tracker};
 use supermvo_inference::{Extractor, FrameView, InferenceError, Matcher};
 
 /// Extractor, matcher and tracker in one process, one after the other: the reference
@@ -69,9 +69,9 @@ pub fn close_loops(
 ) -> Option<crate::loops::Correction> {
     for late in &out.backfilled {
         // frames posed by this one's initialisation belong before it, with the reference
-        loops.add_frame(late.index, &pose_of(&late.pose));
+        loops.add_frame(late.index, &late.t_world_cam);
     }
-    let pose = output_pose(out)?;
+    let pose = out.t_world_cam?;
     if !out.keyframe {
         loops.add_frame(out.index, &pose);
         return None;

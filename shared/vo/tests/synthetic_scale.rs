@@ -271,10 +271,7 @@ fn run_counted(
         if let Some(o) = tracker.track_without_matches(meta, &f) {
             tracked.push(o.inliers);
             ids_of.insert(k, ids);
-            out.push((
-                o.pose.map(|p| Vec3::new(p[3], p[7], p[11])),
-                path_with(k, drive).0,
-            ));
+            out.push((o.t_world_cam.map(|p| p.t), path_with(k, drive).0));
             continue;
         }
         let matches = tracker.reference().map(|(reference, _)| {
@@ -302,12 +299,8 @@ fn run_counted(
         ids_of.insert(k, ids);
         let o = tracker.step(meta, f, matches.as_ref());
         tracked.push(o.inliers);
-        backfilled.extend(
-            o.backfilled
-                .iter()
-                .map(|l| (l.index, Vec3::new(l.pose[3], l.pose[7], l.pose[11]))),
-        );
-        let est = o.pose.map(|p| Vec3::new(p[3], p[7], p[11]));
+        backfilled.extend(o.backfilled.iter().map(|l| (l.index, l.t_world_cam.t)));
+        let est = o.t_world_cam.map(|p| p.t);
         out.push((est, path_with(k, drive).0));
     }
     (out, matched, tracked, backfilled)

@@ -85,7 +85,7 @@ impl InprocessRecording {
             frame: out.index as u64,
             stamp: out.stamp,
             state: state.as_str().unwrap_or("unknown"),
-            t_world_cam: out.pose,
+            t_world_cam: out.t_world_cam.map(|p| p.to_row_major_3x4()),
             keyframe: out.keyframe,
             counts: [out.keypoints, out.matches, out.inliers, out.landmarks].map(|v| v as u64),
             view,
@@ -97,7 +97,8 @@ impl InprocessRecording {
         };
         self.recorder.frame(&record);
         for late in &out.backfilled {
-            self.recorder.late_pose(late.index as u64, &late.pose);
+            self.recorder
+                .late_pose(late.index as u64, &late.t_world_cam.to_row_major_3x4());
         }
         self.recorder.timing(&Timing {
             frame: out.index as u64,

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use supermvo_config::{Config, IngestMode};
 use supermvo_dataset::{Camera, GrayImage, Sequence, Trajectory};
 use supermvo_eval::{evaluate, EvalOptions};
-use supermvo_geometry::AlignmentKind;
+use supermvo_geometry::{AlignmentKind, Pose};
 use supermvo_pipeline::backend::{read_records, with_corrections, write_trajectories};
 use supermvo_pipeline::supervisor::{default_bin_dir, SupervisorOptions};
 use supermvo_pipeline::{features, matching, tracking};
@@ -535,7 +535,11 @@ fn run_multiprocess(
     let records = with_corrections(&args.out, &read_records(&args.out.join("frames.csv"))?);
     let est: Vec<_> = records
         .iter()
-        .filter_map(|r| r.pose.as_ref().map(|p| (r.stamp, tracking::pose_of(p))))
+        .filter_map(|r| {
+            r.pose
+                .as_ref()
+                .map(|p| (r.stamp, Pose::from_row_major_3x4(p)))
+        })
         .collect();
     let traj = Trajectory {
         stamps: Some(est.iter().map(|e| e.0).collect()),

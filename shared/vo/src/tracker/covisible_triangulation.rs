@@ -58,7 +58,7 @@ impl Tracker {
         for (ik, ij) in pairs {
             let bk = bearing(&self.calib, &kf.features.keypoints[ik]);
             let bj = bearing(&self.calib, &older.keypoints[ij]);
-            let views = [(view_j.0, view_j.1, bj), (view_k.0, view_k.1, bk)];
+            let views = [(view_j.r, view_j.t, bj), (view_k.r, view_k.t, bk)];
             let Some(tri) = triangulate_checked(&views, gate) else {
                 continue;
             };
@@ -86,7 +86,8 @@ impl Tracker {
         older: &Features,
         j: usize,
     ) -> Vec<(usize, usize)> {
-        let ((r_k, t_k), (r_j, t_j)) = (self.map.keyframe_poses[kf.id], self.map.keyframe_poses[j]);
+        let (view_k, view_j) = (self.map.keyframe_poses[kf.id], self.map.keyframe_poses[j]);
+        let (r_k, t_k, r_j, t_j) = (view_k.r, view_k.t, view_j.r, view_j.t);
         // X_k = r X_j + t; the epipolar constraint b_k' E b_j = 0 with E = [t]x r
         let r = r_k * r_j.transpose();
         let t = t_k - r * t_j;

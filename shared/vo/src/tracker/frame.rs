@@ -2,7 +2,7 @@
 //! bearings and the `T_world_cam` poses it reports.
 
 use supermvo_dataset::{Calibration, GrayImage};
-use supermvo_geometry::{Mat3, Pose, Vec3};
+use supermvo_geometry::{Pose, Vec3};
 
 /// Tracking state of a frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
@@ -37,8 +37,8 @@ pub struct FrameOutput {
     pub stamp: f64,
     /// State.
     pub state: TrackingState,
-    /// `T_world_cam` as a 3x4 row-major matrix, when estimated.
-    pub pose: Option<[f64; 12]>,
+    /// The camera's pose in the world, when estimated.
+    pub t_world_cam: Option<Pose>,
     /// Keypoints detected.
     pub keypoints: usize,
     /// Matches to the reference keyframe.
@@ -69,18 +69,18 @@ pub struct LatePose {
     pub index: usize,
     /// Timestamp, seconds.
     pub stamp: f64,
-    /// `T_world_cam` as a 3x4 row-major matrix.
-    pub pose: [f64; 12],
+    /// The camera's pose in the world.
+    pub t_world_cam: Pose,
 }
 
 impl FrameOutput {
     /// Every pose this output gives, `(frame index, T_world_cam)`: the frames it
     /// [backfilled](FrameOutput::backfilled) (in frame order), then its own.
     pub fn poses(&self) -> impl Iterator<Item = (usize, Pose)> + '_ {
-        let own = output_pose(self).map(|p| (self.index, p));
+        let own = self.t_world_cam.map(|p| (self.index, p));
         self.backfilled
             .iter()
-            .map(|l| (l.index, pose_of(&l.pose)))
+            .map(|l| (l.index, l.t_world_cam))
             .chain(own)
     }
 }
@@ -94,44 +94,10 @@ pub struct FrameMeta {
     pub stamp: f64,
 }
 
-/// The pose of an output as a [`Pose`].
-pub fn output_pose(o: &FrameOutput) -> Option<Pose> {
-    o.pose.as_ref().map(pose_of)
-}
-
-/// A 3x4 row-major `T_world_cam` as a [`Pose`].
-pub fn pose_of(p: &[f64; 12]) -> Pose {
-    Pose::new(
-        Mat3::new(p[0], p[1], p[2], p[4], p[5], p[6], p[8], p[9], p[10]),
-        Vec3::new(p[3], p[7], p[11]),
-    )
-}
-
 pub(crate) fn bearing(c: &Calibration, p: &[f32; 2]) -> Vec3 {
     Vec3::new(
         (p[0] as f64 - c.cx) / c.fx,
         (p[1] as f64 - c.cy) / c.fy,
         1.0,
     )
-}
-
-/// `T_cam_world = (r, t)` as `T_world_cam`, a 3x4 row-major matrix.
-pub(crate) fn pose_array(r: &Mat3, t: &Vec3) -> [f64; 12] {
-    // T_world_cam = (R^T, -R^T t)
-    let rw = r.transpose();
-    let tw = -(rw * t);
-    [
-        rw[(0, 0)],
-        rw[(0, 1)],
-        rw[(0, 2)],
-        tw.x,
-        rw[(1, 0)],
-        rw[(1, 1)],
-        rw[(1, 2)],
-        tw.y,
-        rw[(2, 0)],
-        rw[(2, 1)],
-        rw[(2, 2)],
-        tw.z,
-    ]
 }

@@ -5,7 +5,7 @@
 use super::frame::bearing;
 use super::{FrameMeta, FrameOutput, Keyframe, Tracker, TrackingState};
 use supermvo_geometry::essential::{find_essential, recover_pose, triangulate_checked};
-use supermvo_geometry::{Mat3, Vec3};
+use supermvo_geometry::{Mat3, Pose, Vec3};
 use supermvo_inference::{Features, Matches};
 
 impl Tracker {
@@ -17,16 +17,16 @@ impl Tracker {
     ) -> FrameOutput {
         let Some(kf) = self.keyframe.take() else {
             // first frame (or first after a loss): becomes the reference at the last pose
-            let (r, t) = self.last_pose;
+            let t_cam_world = self.last_t_cam_world;
             let out = self.output(
                 input,
                 TrackingState::Initializing,
-                Some((r, t)),
+                Some(t_cam_world),
                 cur.len(),
                 (0, 0),
                 true,
             );
-            self.set_reference(input.index, r, t, cur);
+            self.set_reference(input.index, t_cam_world, cur);
             return out;
         };
         let Some(m) = m else {
@@ -100,25 +100,24 @@ impl Tracker {
         };
         // current camera: T_cur_world = T_cur_kf * T_kf_world
         let t_rel = t_rel * s;
-        let r = r_rel * kf.r;
-        let t = r_rel * kf.t + t_rel;
-        let cur_id = self.map.new_keyframe_id(r, t);
+        let t_cur_world = Pose::new(r_rel, t_rel).compose(&kf.t_cam_world);
+        let cur_id = self.map.new_keyframe_id(t_cur_world);
         let (keypoints, landmark) = (cur.len(), vec![None; cur.len()]);
         let init = (&inl[..], self.cfg.min_init_parallax_deg);
-        self.insert_keyframe(&kf, cur, (input.index, cur_id), (r, t), landmark, init);
+        self.insert_keyframe(&kf, cur, (input.index, cur_id), t_cur_world, landmark, init);
         let backfilled = self.pose_initialising_frames(&self.reference_landmarks(&inl));
         // the motion per frame between reference and new keyframe is the first motion model:
         // should the next frame's PnP on the new (small) map fail, the prediction and the
         // local-map search still have a pose to start from
         let gap = input.index.saturating_sub(kf.frame).max(1) as f64;
         let r_step = supermvo_geometry::so3_exp(&(supermvo_geometry::so3_log(&r_rel) / gap));
-        self.velocity = Some((r_step, t_rel / gap));
+        self.velocity = Some(Pose::new(r_step, t_rel / gap));
         self.unseen = 0;
         let counts = (m.pairs.len(), est.inlier_count());
         let mut out = self.output(
             input,
             TrackingState::Tracking,
-            Some((r, t)),
+            Some(t_cur_world),
             keypoints,
             counts,
             true,

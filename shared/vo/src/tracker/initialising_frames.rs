@@ -7,7 +7,7 @@
 //! initialised ([`super::FrameOutput::backfilled`]). The reference frame of a new map after
 //! a loss is not among them: its pose is the assumed last pose the new map starts from.
 
-use super::frame::{bearing, pose_array};
+use super::frame::bearing;
 use super::tracking::{LandmarkMatches, PoseFit};
 use super::{FrameMeta, LatePose, Tracker};
 use std::collections::{HashMap, VecDeque};
@@ -71,7 +71,7 @@ impl Tracker {
                 posed.push(LatePose {
                     index: f.meta.index,
                     stamp: f.meta.stamp,
-                    pose: pose_array(&fit.r, &fit.t),
+                    t_world_cam: fit.t_cam_world.inverse(),
                 });
             }
         }

@@ -117,8 +117,8 @@ impl Tracker {
             }
         }
         if let Some(kf) = self.keyframe.as_mut() {
-            (kf.r, kf.t) = self.map.keyframe_poses[kf.id];
-            self.last_pose = (kf.r, kf.t);
+            kf.t_cam_world = self.map.keyframe_poses[kf.id];
+            self.last_t_cam_world = kf.t_cam_world;
         }
         self.last_ba = Some(BaStats {
             ms: started.elapsed().as_secs_f64() * 1e3,

@@ -4,19 +4,19 @@
 //! frame's landmarks, with that frame's descriptors).
 
 use super::Tracker;
-use supermvo_geometry::{Mat3, Vec3};
+use supermvo_geometry::{Pose, Vec3};
 use supermvo_inference::Features;
 
 impl Tracker {
     /// The local-map search: projects every landmark of the local map not in `skip` into
-    /// the frame at `T_cam_world = (r, t)` and pairs it with the free keypoint (`taken` false)
+    /// the frame at `t_cam_world` and pairs it with the free keypoint (`taken` false)
     /// within the search radius whose descriptor is nearest, when that distance passes the
     /// threshold and the ratio test. Each keypoint keeps its nearest landmark. Returns
     /// `(keypoint, landmark id)` pairs in keypoint order.
     pub(crate) fn search_local_map(
         &self,
         cur: &Features,
-        (r, t): (&Mat3, &Vec3),
+        t_cam_world: &Pose,
         taken: &[bool],
         skip: &std::collections::BTreeSet<usize>,
         radius: f64,
@@ -28,18 +28,18 @@ impl Tracker {
             .filter(|(id, _)| !skip.contains(id))
             .map(|(&id, lm)| (id, &lm.p, &lm.desc[..]));
         let limits = (radius, self.cfg.map_search_ratio);
-        self.match_by_projection(cur, (r, t), taken, candidates, limits)
+        self.match_by_projection(cur, t_cam_world, taken, candidates, limits)
     }
 
     /// Pairs each candidate `(landmark id, world point, descriptor)` projected at
-    /// `T_cam_world = (r, t)` with the free keypoint (`taken` false) within `radius` pixels
+    /// `t_cam_world` with the free keypoint (`taken` false) within `radius` pixels
     /// whose descriptor is nearest, when that distance passes the threshold and is below
     /// `ratio` times the second nearest. Each keypoint keeps its nearest landmark. Returns
     /// `(keypoint, landmark id)` pairs in keypoint order.
     pub(crate) fn match_by_projection<'a>(
         &self,
         cur: &Features,
-        (r, t): (&Mat3, &Vec3),
+        t_cam_world: &Pose,
         taken: &[bool],
         candidates: impl Iterator<Item = (usize, &'a Vec3, &'a [f32])>,
         (radius, ratio): (f64, f32),
@@ -74,7 +74,7 @@ impl Tracker {
             if desc.len() != cur.dim {
                 continue;
             }
-            let q = r * p + t;
+            let q = t_cam_world.transform(p);
             if q.z <= 1e-6 {
                 continue;
             }

@@ -48,15 +48,13 @@ mod recovery;
 mod tracking;
 
 pub use config::TrackerConfig;
-pub use frame::{
-    output_pose, pose_of, FrameInput, FrameMeta, FrameOutput, LatePose, TrackingState,
-};
+pub use frame::{FrameInput, FrameMeta, FrameOutput, LatePose, TrackingState};
 pub use local_ba::BaStats;
 
 use crate::map::Map;
-use frame::{bearing, pose_array};
+use frame::bearing;
 use supermvo_dataset::Calibration;
-use supermvo_geometry::{Mat3, Pose, Vec3};
+use supermvo_geometry::Pose;
 use supermvo_inference::{Features, Matches};
 
 /// The reference keyframe: its features, and per keypoint its landmark or pending track.
@@ -64,8 +62,7 @@ struct Keyframe {
     id: usize,
     /// Frame index of the keyframe.
     frame: usize,
-    r: Mat3,
-    t: Vec3,
+    t_cam_world: Pose,
     features: Features,
     landmark: Vec<Option<usize>>,
     /// Per keypoint, the pending track (observations still without enough parallax) it
@@ -81,12 +78,12 @@ pub struct Tracker {
     map: Map,
     keyframe: Option<Keyframe>,
     frames_since_keyframe: usize,
-    /// Rotation and translation of `T_cam_world` of the reference used to re-initialise
-    /// after a loss (the last tracked pose), so the trajectory continues in one frame.
-    last_pose: (Mat3, Vec3),
-    /// Motion between the last two tracked frames, `T_last_prev` (rotation, translation):
-    /// the constant-velocity prediction used when the keyframe matches fail.
-    velocity: Option<(Mat3, Vec3)>,
+    /// `T_cam_world` of the last tracked frame: the reference used to re-initialise after a
+    /// loss, so the trajectory continues in one frame.
+    last_t_cam_world: Pose,
+    /// Motion between the last two tracked frames, `T_last_prev`: the constant-velocity
+    /// prediction used when the keyframe matches fail.
+    velocity: Option<Pose>,
     /// Blind frames in a row for which the map was kept (relocalisation).
     lost_streak: usize,
     /// The index of the last frame handed to the tracker, and how many frames since the
@@ -122,7 +119,7 @@ impl Tracker {
             map: Map::new(0.5 * (calib.fx + calib.fy)),
             keyframe: None,
             frames_since_keyframe: 0,
-            last_pose: (Mat3::identity(), Vec3::zeros()),
+            last_t_cam_world: Pose::identity(),
             velocity: None,
             lost_streak: 0,
             last_index: None,
@@ -148,13 +145,13 @@ impl Tracker {
     /// The pose of the next frame under constant velocity (`None` until two frames were
     /// tracked in a row), across the frames that failed or never arrived since the last
     /// tracked one.
-    fn predict(&self) -> Option<(Mat3, Vec3)> {
-        let (rv, tv) = self.velocity?;
-        let (mut r, mut t) = self.last_pose;
+    fn predict(&self) -> Option<Pose> {
+        let velocity = self.velocity?;
+        let mut t_cam_world = self.last_t_cam_world;
         for _ in 0..=self.lost_streak + self.unseen {
-            (r, t) = (rv * r, rv * t + tv);
+            t_cam_world = velocity.compose(&t_cam_world);
         }
-        Some((r, t))
+        Some(t_cam_world)
     }
 
     fn focal(&self) -> f64 {
@@ -218,9 +215,7 @@ impl Tracker {
     /// Restarts from `T_world_cam` with the map scale of an earlier run (a restarted tracking
     /// process continues the trajectory the back end recorded). Clears map and reference.
     pub fn restore(&mut self, t_world_cam: &Pose, scale: Option<f64>) {
-        let r = t_world_cam.r.transpose();
-        let t = -(r * t_world_cam.t);
-        self.last_pose = (r, t);
+        self.last_t_cam_world = t_world_cam.inverse();
         self.velocity = None;
         self.lost_streak = 0;
         self.unseen = 0;
@@ -239,11 +234,11 @@ impl Tracker {
     /// the similarity `x -> s R x + t`: the loop closer's correction of the world frame, so
     /// that tracking continues in the corrected world at the corrected scale.
     pub fn apply_correction(&mut self, c: &supermvo_optim::lie::Sim3) {
-        let move_pose = |(r, t): (Mat3, Vec3)| {
+        let move_pose = |Pose { r, t }: Pose| {
             let centre = -(r.transpose() * t);
             let centre = c.s * (c.r * centre) + c.t;
             let r2 = r * c.r.transpose();
-            (r2, -(r2 * centre))
+            Pose::new(r2, -(r2 * centre))
         };
         for p in self.map.keyframe_poses.iter_mut() {
             *p = move_pose(*p);
@@ -252,11 +247,11 @@ impl Tracker {
             lm.p = c.s * (c.r * lm.p) + c.t;
         }
         if let Some(kf) = self.keyframe.as_mut() {
-            (kf.r, kf.t) = move_pose((kf.r, kf.t));
+            kf.t_cam_world = move_pose(kf.t_cam_world);
         }
-        self.last_pose = move_pose(self.last_pose);
+        self.last_t_cam_world = move_pose(self.last_t_cam_world);
         if let Some(v) = self.velocity.as_mut() {
-            v.1 *= c.s;
+            v.t *= c.s;
         }
         self.scale = self.scale.map(|s| s * c.s);
     }
@@ -265,7 +260,7 @@ impl Tracker {
         &self,
         input: &FrameMeta,
         state: TrackingState,
-        pose: Option<(Mat3, Vec3)>,
+        t_cam_world: Option<Pose>,
         keypoints: usize,
         (matches, inliers): (usize, usize),
         keyframe: bool,
@@ -274,7 +269,7 @@ impl Tracker {
             index: input.index,
             stamp: input.stamp,
             state,
-            pose: pose.map(|(r, t)| pose_array(&r, &t)),
+            t_world_cam: t_cam_world.map(|p| p.inverse()),
             keypoints,
             matches,
             inliers,
@@ -287,24 +282,23 @@ impl Tracker {
         }
     }
 
-    /// Makes `cur` the reference keyframe at `(r, t)`, without landmarks (initialisation
-    /// starts from it).
-    fn set_reference(&mut self, frame: usize, r: Mat3, t: Vec3, cur: Features) {
-        let id = self.map.new_keyframe_id(r, t);
+    /// Makes `cur` the reference keyframe at `t_cam_world`, without landmarks
+    /// (initialisation starts from it).
+    fn set_reference(&mut self, frame: usize, t_cam_world: Pose, cur: Features) {
+        let id = self.map.new_keyframe_id(t_cam_world);
         self.initialising.clear();
         let (landmark, track) = (vec![None; cur.len()], vec![None; cur.len()]);
         self.keyframe = Some(Keyframe {
             id,
             frame,
-            r,
-            t,
+            t_cam_world,
             features: cur,
             landmark,
             track,
         });
     }
 
-    /// Makes `cur` (frame index `frame`, registered as keyframe `cur_id` at `(r, t)`) the new
+    /// Makes `cur` (frame index `frame`, registered as keyframe `cur_id` at `t_cam_world`) the new
     /// keyframe. Each match in `candidates` to `kf` without a landmark extends the pending
     /// track of its keypoint in `kf` (or starts one there); a track becomes a landmark once
     /// its observations triangulate with enough parallax, otherwise it waits for the next
@@ -315,7 +309,7 @@ impl Tracker {
         kf: &Keyframe,
         cur: Features,
         (frame, cur_id): (usize, usize),
-        (r, t): (Mat3, Vec3),
+        t_cam_world: Pose,
         mut landmark: Vec<Option<usize>>,
         (candidates, min_parallax_deg): (&[(usize, usize)], f64),
     ) {
@@ -341,12 +335,11 @@ impl Tracker {
                 }
             }
         }
-        self.last_pose = (r, t);
+        self.last_t_cam_world = t_cam_world;
         self.keyframe = Some(Keyframe {
             id: cur_id,
             frame,
-            r,
-            t,
+            t_cam_world,
             features: cur,
             landmark,
             track,
@@ -393,7 +386,7 @@ impl Tracker {
         } else {
             self.initialise(&meta, cur, matches)
         };
-        if out.pose.is_none() {
+        if out.t_world_cam.is_none() {
             self.last_frame = None;
         } else if out.keyframe {
             self.last_frame = self.keyframe.as_ref().map(projection::LastFrame::keyframe);
@@ -415,6 +408,7 @@ impl Tracker {
 mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
     use super::*;
+    use supermvo_geometry::{Mat3, Vec3};
 
     const F: f64 = 700.0;
 
@@ -447,14 +441,14 @@ mod tests {
     fn the_motion_model_spans_frames_that_never_arrived() {
         let mut tr = Tracker::new(calibration(620.0, 188.0), TrackerConfig::default());
         let yaw = |a: f64| supermvo_geometry::so3_exp(&Vec3::new(0.0, a, 0.0));
-        tr.velocity = Some((yaw(0.02), Vec3::new(0.0, 0.0, -1.0)));
-        tr.last_pose = (Mat3::identity(), Vec3::zeros());
+        tr.velocity = Some(Pose::new(yaw(0.02), Vec3::new(0.0, 0.0, -1.0)));
+        tr.last_t_cam_world = Pose::identity();
         tr.note_frame(10);
-        let (r1, t1) = tr.predict().unwrap();
+        let Pose { r: r1, t: t1 } = tr.predict().unwrap();
         // frames 11 and 12 dropped: frame 13 is three steps on
         tr.note_frame(13);
         assert_eq!(tr.unseen, 2);
-        let (r3, t3) = tr.predict().unwrap();
+        let Pose { r: r3, t: t3 } = tr.predict().unwrap();
         let mut expected = (Mat3::identity(), Vec3::zeros());
         for _ in 0..3 {
             expected = (
@@ -470,12 +464,11 @@ mod tests {
             stamp: 1.3,
         };
         let fit = tracking::PoseFit {
-            r: expected.0,
-            t: expected.1,
+            t_cam_world: Pose::new(expected.0, expected.1),
             inlier: Vec::new(),
         };
         tr.update_motion_model(&meta, &fit);
-        let (rv, tv) = tr.velocity.unwrap();
+        let Pose { r: rv, t: tv } = tr.velocity.unwrap();
         assert!((rv - yaw(0.02)).norm() < 1e-9, "{rv}");
         assert!((tv - Vec3::new(0.0, 0.0, -1.0)).norm() < 0.02, "{tv}");
         assert_eq!(tr.unseen, 0);
@@ -507,7 +500,7 @@ mod tests {
         let few = matches(50);
         let out = tr.step(meta(2), features(400, 40.0), Some(&few));
         assert_eq!(out.state, TrackingState::Initializing);
-        assert!(out.pose.is_none());
+        assert!(out.t_world_cam.is_none());
         assert_eq!(tr.reference().map(|r| r.0), Some(2));
         // a blind frame (no keypoints, so no matches) says nothing about the reference: it
         // stays

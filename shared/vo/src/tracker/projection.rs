@@ -7,7 +7,7 @@
 
 use super::tracking::{LandmarkMatches, PoseFit};
 use super::{FrameMeta, FrameOutput, Keyframe, Tracker, TrackingState};
-use supermvo_geometry::{Mat3, Vec3};
+use supermvo_geometry::Pose;
 use supermvo_inference::Features;
 
 /// The landmarks a tracked frame saw (its pose's inliers) with that frame's descriptor of
@@ -99,12 +99,11 @@ impl Tracker {
         }
         self.update_motion_model(&input, &fit);
         self.last_frame = Some(LastFrame::tracked(cur, &matches, &fit));
-        let pose = Some((fit.r, fit.t));
         let counts = (found, tracked);
         let out = self.output(
             &input,
             TrackingState::Tracking,
-            pose,
+            Some(fit.t_cam_world),
             cur.len(),
             counts,
             false,
@@ -118,7 +117,7 @@ impl Tracker {
         &self,
         last: &LastFrame,
         cur: &Features,
-        predicted: &(Mat3, Vec3),
+        predicted: &Pose,
     ) -> LandmarkMatches {
         let taken = vec![false; cur.len()];
         let search = |radius: f64| {
@@ -128,13 +127,7 @@ impl Tracker {
                 Some((*id, &lm.p, desc))
             });
             let limits = (radius, self.cfg.map_search_ratio);
-            self.match_by_projection(
-                cur,
-                (&predicted.0, &predicted.1),
-                &taken,
-                candidates,
-                limits,
-            )
+            self.match_by_projection(cur, predicted, &taken, candidates, limits)
         };
         let mut pairs = search(self.cfg.projection_radius_px);
         if pairs.len() < self.cfg.min_tracked {

@@ -38,10 +38,10 @@ impl Tracker {
         self.map.tracks.clear();
         self.map.segment_start = self.map.keyframe_poses.len();
         self.last_frame = None;
-        self.set_reference(kf.frame, kf.r, kf.t, kf.features);
+        self.set_reference(kf.frame, kf.t_cam_world, kf.features);
         self.frames_since_keyframe = 0;
         let mut out = self.initialise(input, cur, Some(m));
-        if out.pose.is_none() {
+        if out.t_world_cam.is_none() {
             out.state = TrackingState::Lost;
         }
         out
@@ -117,14 +117,14 @@ impl Tracker {
         state: TrackingState,
     ) -> FrameOutput {
         let out = self.output(input, state, None, cur.len(), (matches, 0), false);
-        let (r, t) = self.last_pose;
+        let t_cam_world = self.last_t_cam_world;
         self.velocity = None;
         self.lost_streak = 0;
         self.unseen = 0;
         self.map.landmarks.clear();
         self.map.tracks.clear();
         self.map.segment_start = self.map.keyframe_poses.len();
-        self.set_reference(input.index, r, t, cur);
+        self.set_reference(input.index, t_cam_world, cur);
         self.frames_since_keyframe = 0;
         out
     }

@@ -8,7 +8,7 @@ use super::frame::bearing;
 use super::projection::LastFrame;
 use super::{FrameMeta, FrameOutput, Keyframe, Tracker, TrackingState};
 use supermvo_geometry::pnp::{reprojection_sq, solve_pnp_ransac, PnpConfig, PnpEstimate};
-use supermvo_geometry::{Mat3, Vec3};
+use supermvo_geometry::{Mat3, Pose, Vec3};
 use supermvo_inference::{Features, Matches};
 
 /// The frame's matches to landmarks: those through the reference keyframe's matches first,
@@ -29,8 +29,7 @@ pub(super) struct LandmarkMatches {
 /// A frame's pose `T_cam_world` and which landmark matches agree with it (within the PnP
 /// threshold).
 pub(super) struct PoseFit {
-    pub(super) r: Mat3,
-    pub(super) t: Vec3,
+    pub(super) t_cam_world: Pose,
     pub(super) inlier: Vec<bool>,
 }
 
@@ -69,11 +68,10 @@ impl Tracker {
         if !self.needs_keyframe(&kf, tracked, self.frames_since_keyframe) {
             self.last_frame = Some(LastFrame::tracked(&cur, &matches, &fit));
             let counts = (m.pairs.len(), tracked);
-            let pose = Some((fit.r, fit.t));
             let out = self.output(
                 input,
                 TrackingState::Tracking,
-                pose,
+                Some(fit.t_cam_world),
                 cur.len(),
                 counts,
                 false,
@@ -138,11 +136,11 @@ impl Tracker {
             .or_else(|| {
                 // the keyframe's landmarks do not suffice: predict the pose with constant
                 // velocity and search the whole local map around it
-                let (r, t) = self.predict()?;
+                let predicted = self.predict()?;
                 tracing::debug!(frame = input.index, "keyframe PnP failed: motion model");
                 Some(PnpEstimate {
-                    r,
-                    t,
+                    r: predicted.r,
+                    t: predicted.t,
                     inliers: vec![false; lm.points.len()],
                 })
             })
@@ -192,7 +190,8 @@ impl Tracker {
         // a prediction is coarser than a PnP pose: search twice as far
         let predicted = first.inlier_count() == 0;
         let radius = self.cfg.map_search_radius_px * if predicted { 2.0 } else { 1.0 };
-        let from_map = self.search_local_map(cur, (&first.r, &first.t), &taken, &skip, radius);
+        let first_pose = Pose::new(first.r, first.t);
+        let from_map = self.search_local_map(cur, &first_pose, &taken, &skip, radius);
         for &(b, id) in &from_map {
             lm.pairs.push((b, id));
             lm.points.push(self.map.landmarks[&id].p);
@@ -267,7 +266,10 @@ impl Tracker {
                 (r, t, inlier) = (r2, t2, inlier2);
             }
         }
-        let fit = PoseFit { r, t, inlier };
+        let fit = PoseFit {
+            t_cam_world: Pose::new(r, t),
+            inlier,
+        };
         (fit.tracked() >= self.cfg.min_tracked).then_some(fit)
     }
 
@@ -287,7 +289,9 @@ impl Tracker {
             .points
             .iter()
             .zip(&lm.bearings)
-            .map(|(p, b)| reprojection_sq(&fit.r, &fit.t, p, b).sqrt() * self.focal())
+            .map(|(p, b)| {
+                reprojection_sq(&fit.t_cam_world.r, &fit.t_cam_world.t, p, b).sqrt() * self.focal()
+            })
             .collect();
         errs.sort_by(f64::total_cmp);
         let median = errs.get(errs.len() / 2).copied().unwrap_or(f64::NAN);
@@ -310,27 +314,27 @@ impl Tracker {
     /// constant-velocity model, per frame when frames were dropped before this one (after a
     /// relocalisation the gap spans failed frames, so the model starts again).
     pub(super) fn update_motion_model(&mut self, input: &FrameMeta, fit: &PoseFit) {
-        let (r, t) = (fit.r, fit.t);
+        let Pose { r, t } = fit.t_cam_world;
         if self.lost_streak > 0 {
             // relocalised: the motion since the last tracked pose spans the failed frames
             tracing::debug!(frame = input.index, after = self.lost_streak, "relocalised");
             self.velocity = None;
             self.lost_streak = 0;
         } else {
-            let (lr, lt) = self.last_pose;
-            let rv = r * lr.transpose();
-            let tv = t - rv * lt;
+            let last = self.last_t_cam_world;
+            let rv = r * last.r.transpose();
+            let tv = t - rv * last.t;
             self.velocity = Some(if self.unseen == 0 {
-                (rv, tv)
+                Pose::new(rv, tv)
             } else {
                 // frames dropped upstream: the motion per frame over the gap
                 let steps = (self.unseen + 1) as f64;
                 let r_step = supermvo_geometry::so3_exp(&(supermvo_geometry::so3_log(&rv) / steps));
-                (r_step, tv / steps)
+                Pose::new(r_step, tv / steps)
             });
         }
         self.unseen = 0;
-        self.last_pose = (r, t);
+        self.last_t_cam_world = fit.t_cam_world;
         self.frames_since_keyframe += 1;
     }
 
@@ -364,9 +368,9 @@ impl Tracker {
         m: &Matches,
         (lm, fit): (&LandmarkMatches, &PoseFit),
     ) -> FrameOutput {
-        let (r, t) = (fit.r, fit.t);
+        let Pose { r, t } = fit.t_cam_world;
         let tracked = fit.tracked();
-        let cur_id = self.map.new_keyframe_id(r, t);
+        let cur_id = self.map.new_keyframe_id(fit.t_cam_world);
         let mut landmark = vec![None; cur.len()];
         let observed = lm
             .pairs
@@ -418,12 +422,19 @@ impl Tracker {
             self.cfg.min_triangulation_parallax_deg
         };
         let fresh = (&fresh[..], min_parallax);
-        self.insert_keyframe(&kf, cur, (input.index, cur_id), (r, t), landmark, fresh);
+        self.insert_keyframe(
+            &kf,
+            cur,
+            (input.index, cur_id),
+            fit.t_cam_world,
+            landmark,
+            fresh,
+        );
         let counts = (m.pairs.len(), tracked);
         self.output(
             input,
             TrackingState::Tracking,
-            Some((r, t)),
+            Some(fit.t_cam_world),
             keypoints,
             counts,
             true,
@@ -496,7 +507,8 @@ mod tests {
         let fit = tracker(1.5).refine_pose(&lm, (&est, &pnp)).unwrap();
         assert!(fit.tracked() >= 55, "{} tracked", fit.tracked());
         // measured: 48 PnP inliers, 60 after the refinement, 7 cm from the true position
-        assert!(fit.t.norm() < 0.15 && (fit.r - Mat3::identity()).norm() < 5e-3);
+        let Pose { r, t } = fit.t_cam_world;
+        assert!(t.norm() < 0.15 && (r - Mat3::identity()).norm() < 5e-3);
         assert!(tracker(1.0).first_pose(&meta, &lm).is_none());
     }
 }
