@@ -176,8 +176,8 @@ fn multiprocess_lossless_equals_inprocess_bit_for_bit_on_kitti_03() {
     let seq = Sequence::open(&seq_dir).unwrap();
     let p = &opts.config.pipeline;
     let mut vo = VoPipeline::new(
-        features::extractor(p).unwrap(),
-        matching::matcher(p).unwrap(),
+        features::extractor(p, supermvo_config::NetworkPlacement::Alternating).unwrap(),
+        matching::matcher(p, supermvo_config::NetworkPlacement::Alternating).unwrap(),
         Tracker::new(seq.calib, tracking::tracker_config(p)),
         None,
     );

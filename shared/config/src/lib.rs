@@ -157,6 +157,12 @@ pub struct PipelineConfig {
     pub top_k: usize,
     /// ONNX Runtime intra-op threads per network, [1, 64].
     pub threads: usize,
+    /// Intra-op threads of the feature extractor alone, [0, 64]; 0: automatic (`threads`
+    /// in one process; half of them in the daemon, where extraction of the next frame runs
+    /// beside matching of this one).
+    pub features_threads: usize,
+    /// Intra-op threads of the matcher alone, [0, 64]; 0: automatic, as `features_threads`.
+    pub matching_threads: usize,
     /// ONNX Runtime's intra-op threads spin (busy-wait) between calls. Off: extraction and
     /// matching alternate on the same cores, and a spinning idle session takes them from the
     /// running one (`tools/bench_spinning.py`).
@@ -244,6 +250,15 @@ pub struct PipelineConfig {
     pub seed: u64,
 }
 
+/// How the extractor and the matcher share the machine.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NetworkPlacement {
+    /// One after the other in one process (`supermvo run --mode inprocess`).
+    Alternating,
+    /// At the same time, in the daemon's features and matching processes.
+    SideBySide,
+}
+
 impl Default for PipelineConfig {
     fn default() -> Self {
         Self {
@@ -253,6 +268,8 @@ impl Default for PipelineConfig {
             speed: 1.0,
             top_k: 1024,
             threads: 2,
+            features_threads: 0,
+            matching_threads: 0,
             thread_spinning: false,
             device: Device::Cpu,
             features_workers: 1,
@@ -283,6 +300,26 @@ impl Default for PipelineConfig {
 }
 
 impl PipelineConfig {
+    /// Intra-op threads of the feature extractor placed as given.
+    pub fn extractor_threads(&self, placement: NetworkPlacement) -> usize {
+        self.stage_threads(self.features_threads, placement)
+    }
+
+    /// Intra-op threads of the matcher placed as given.
+    pub fn matcher_threads(&self, placement: NetworkPlacement) -> usize {
+        self.stage_threads(self.matching_threads, placement)
+    }
+
+    /// A stage's own setting, or by default `threads` for networks that take turns and
+    /// half of them (at least one) for networks that run at the same time.
+    fn stage_threads(&self, own: usize, placement: NetworkPlacement) -> usize {
+        match (own, placement) {
+            (0, NetworkPlacement::Alternating) => self.threads,
+            (0, NetworkPlacement::SideBySide) => (self.threads / 2).max(1),
+            (n, _) => n,
+        }
+    }
+
     /// Checks ranges.
     pub fn validate(&self) -> Result<(), ConfigError> {
         fn range<T: PartialOrd + ToString>(
@@ -356,6 +393,8 @@ impl PipelineConfig {
         }
         range("top_k", self.top_k, 64, 8192)?;
         range("threads", self.threads, 1, 64)?;
+        range("features_threads", self.features_threads, 0, 64)?;
+        range("matching_threads", self.matching_threads, 0, 64)?;
         range("features_workers", self.features_workers, 1, 8)?;
         range("ba_window", self.ba_window, 0, 30)?;
         range("relocalisation_frames", self.relocalisation_frames, 0, 100)?;
@@ -500,6 +539,22 @@ impl Config {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn networks_side_by_side_share_the_threads_unless_set() {
+        let mut p = PipelineConfig::default();
+        let (one, both) = (NetworkPlacement::Alternating, NetworkPlacement::SideBySide);
+        assert_eq!((p.extractor_threads(one), p.matcher_threads(one)), (2, 2));
+        assert_eq!((p.extractor_threads(both), p.matcher_threads(both)), (1, 1));
+        p.threads = 1;
+        assert_eq!(p.matcher_threads(both), 1);
+        p.threads = 8;
+        p.matching_threads = 6;
+        assert_eq!((p.extractor_threads(both), p.matcher_threads(both)), (4, 6));
+        assert_eq!(p.matcher_threads(one), 6);
+        p.features_threads = 65;
+        assert!(p.validate().is_err());
+    }
 
     #[test]
     fn unknown_key_is_named() {

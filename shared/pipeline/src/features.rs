@@ -4,7 +4,7 @@
 use crate::common::{send_slice, stamp, StageArgs, StageContext};
 use crate::inbox::Inbox;
 use anyhow::Result;
-use supermvo_config::{Frontend, PipelineConfig, Undistort};
+use supermvo_config::{Frontend, NetworkPlacement, PipelineConfig, Undistort};
 use supermvo_dataset::{Camera, GrayImage, Sequence};
 use supermvo_inference::aliked::{Aliked, AlikedConfig};
 use supermvo_inference::models;
@@ -17,13 +17,16 @@ use supermvo_messages::iceoryx2::prelude::*;
 use supermvo_messages::{now_ns, FeatureLayout, MessageError, StageKind, Status, Topic};
 
 /// The extractor the daemon and `supermvo run --mode inprocess` both use.
-pub fn extractor(cfg: &PipelineConfig) -> Result<Box<dyn Extractor + Send>> {
+pub fn extractor(
+    cfg: &PipelineConfig,
+    placement: NetworkPlacement,
+) -> Result<Box<dyn Extractor + Send>> {
     Ok(match cfg.frontend {
         Frontend::XfeatLighterglue => Box::new(XFeat::new(
             &models::model_path("xfeat"),
             XFeatConfig {
                 top_k: cfg.top_k,
-                threads: cfg.threads,
+                threads: cfg.extractor_threads(placement),
                 spin: cfg.thread_spinning,
                 device: crate::common::device(cfg.device),
                 subpixel: cfg.subpixel_keypoints,
@@ -35,7 +38,7 @@ pub fn extractor(cfg: &PipelineConfig) -> Result<Box<dyn Extractor + Send>> {
             &models::model_path("superpoint"),
             SuperPointConfig {
                 top_k: cfg.top_k,
-                threads: cfg.threads,
+                threads: cfg.extractor_threads(placement),
                 spin: cfg.thread_spinning,
                 device: crate::common::device(cfg.device),
                 ..Default::default()
@@ -45,7 +48,7 @@ pub fn extractor(cfg: &PipelineConfig) -> Result<Box<dyn Extractor + Send>> {
             &models::model_path("aliked"),
             AlikedConfig {
                 top_k: cfg.top_k,
-                threads: cfg.threads,
+                threads: cfg.extractor_threads(placement),
                 spin: cfg.thread_spinning,
                 device: crate::common::device(cfg.device),
                 ..Default::default()
@@ -124,7 +127,8 @@ pub fn run(args: &StageArgs) -> Result<()> {
     let cfg = args.load_config()?.pipeline;
     let workers = cfg.features_workers as u64;
     let mut seq = Sequence::open_with_camera(&args.seq, cfg.camera.as_deref())?;
-    let mut extractor = with_lens(extractor(&cfg)?, keypoint_lens(&cfg, &mut seq));
+    let extractor = extractor(&cfg, NetworkPlacement::SideBySide)?;
+    let mut extractor = with_lens(extractor, keypoint_lens(&cfg, &mut seq));
     let mut ctx = StageContext::new(StageKind::Features, args.worker, &cfg)?;
     let frames = ctx.slice_subscriber::<u8>(Topic::Frames)?;
     let publisher = ctx

@@ -12,7 +12,7 @@ use crate::inbox::Inbox;
 use anyhow::Result;
 use std::collections::BTreeMap;
 use std::time::Duration;
-use supermvo_config::{Frontend, PipelineConfig};
+use supermvo_config::{Frontend, NetworkPlacement, PipelineConfig};
 use supermvo_inference::lighterglue::{LightGlue, LightGlueConfig};
 use supermvo_inference::orb::OrbMatcher;
 use supermvo_inference::superglue::{SuperGlue, SuperGlueConfig};
@@ -24,13 +24,16 @@ use supermvo_messages::{
 };
 
 /// The matcher the daemon and `supermvo run --mode inprocess` both use.
-pub fn matcher(cfg: &PipelineConfig) -> Result<Box<dyn Matcher + Send>> {
+pub fn matcher(
+    cfg: &PipelineConfig,
+    placement: NetworkPlacement,
+) -> Result<Box<dyn Matcher + Send>> {
     Ok(match cfg.frontend {
         Frontend::XfeatLighterglue => Box::new(LightGlue::new(
             &models::model_path("lighterglue"),
             "lighterglue",
             LightGlueConfig {
-                threads: cfg.threads,
+                threads: cfg.matcher_threads(placement),
                 spin: cfg.thread_spinning,
                 device: crate::common::device(cfg.device),
                 width_confidence: cfg.width_confidence as f32,
@@ -42,7 +45,7 @@ pub fn matcher(cfg: &PipelineConfig) -> Result<Box<dyn Matcher + Send>> {
             &models::model_path("lightglue"),
             "lightglue",
             LightGlueConfig {
-                threads: cfg.threads,
+                threads: cfg.matcher_threads(placement),
                 spin: cfg.thread_spinning,
                 device: crate::common::device(cfg.device),
                 // LightGlue's own defaults for its adaptive width and depth
@@ -54,7 +57,7 @@ pub fn matcher(cfg: &PipelineConfig) -> Result<Box<dyn Matcher + Send>> {
         Frontend::SuperpointSuperglue => Box::new(SuperGlue::new(
             &models::model_path("superglue"),
             SuperGlueConfig {
-                threads: cfg.threads,
+                threads: cfg.matcher_threads(placement),
                 spin: cfg.thread_spinning,
                 device: crate::common::device(cfg.device),
                 ..Default::default()
@@ -110,7 +113,7 @@ fn warm_up(matcher: &mut dyn Matcher, n: usize, dim: usize) {
 /// Runs the matching stage until SIGTERM.
 pub fn run(args: &StageArgs) -> Result<()> {
     let cfg = args.load_config()?.pipeline;
-    let mut matcher = matcher(&cfg)?;
+    let mut matcher = matcher(&cfg, NetworkPlacement::SideBySide)?;
     let mut ctx = StageContext::new(StageKind::Matching, args.worker, &cfg)?;
     let features = ctx.slice_subscriber::<f32>(Topic::Features)?;
     let poses = ctx.header_subscriber::<PoseMsg>(Topic::Poses)?;

@@ -117,8 +117,11 @@ pub struct RunMetrics {
     pub frames: BTreeMap<String, usize>,
     /// Frames recorded with a pose.
     pub estimated: usize,
-    /// Throughput: recorded frames per second of wall time.
+    /// Throughput: recorded frames per second of wall time (start-up included).
     pub fps: f64,
+    /// Time between successive tracking results, ms: the steady-state time per frame, the
+    /// peer of an in-process run's time per frame (start-up and warm-up excluded).
+    pub frame_interval_ms: Percentiles,
     /// Processing time per frame of each stage (receive to send), ms.
     pub stage_latency_ms: BTreeMap<String, Percentiles>,
     /// CPU time per frame of each stage, core-ms (from each process's own accounting,
@@ -338,6 +341,7 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
     let mut stage_cpu: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     let mut last_cpu_ns: BTreeMap<u32, u64> = BTreeMap::new();
     let mut e2e = Vec::new();
+    let (mut intervals, mut last_result_ns) = (Vec::new(), None::<u64>);
     let mut max_queue: BTreeMap<String, u32> = BTreeMap::new();
     let mut restarts: Vec<RestartRecord> = Vec::new();
     let mut peak_rss: BTreeMap<String, u64> = BTreeMap::new();
@@ -427,6 +431,11 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
                         .push((p.t_out_ns - p.t_in_ns) as f64 * 1e-6);
                     if stage == StageKind::Tracking && p.t_capture_ns > 0 {
                         e2e.push(p.t_out_ns.saturating_sub(p.t_capture_ns) as f64 * 1e-6);
+                    }
+                    if stage == StageKind::Tracking {
+                        if let Some(prev) = last_result_ns.replace(p.t_out_ns) {
+                            intervals.push(p.t_out_ns.saturating_sub(prev) as f64 * 1e-6);
+                        }
                     }
                 }
                 if stage == StageKind::Backend {
@@ -573,6 +582,7 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
             .map(|(k, v)| (k.clone(), Percentiles::of(v)))
             .collect(),
         end_to_end_ms: Percentiles::of(&e2e),
+        frame_interval_ms: Percentiles::of(&intervals),
         max_queue,
         restarts,
         peak_rss_kb: peak_rss,

@@ -421,8 +421,14 @@ fn matching(
         subpixel_keypoints,
         ..Default::default()
     };
-    let mut xfeat = supermvo_pipeline::features::extractor(&pipeline)?;
-    let mut lg = supermvo_pipeline::matching::matcher(&pipeline)?;
+    let mut xfeat = supermvo_pipeline::features::extractor(
+        &pipeline,
+        supermvo_config::NetworkPlacement::Alternating,
+    )?;
+    let mut lg = supermvo_pipeline::matching::matcher(
+        &pipeline,
+        supermvo_config::NetworkPlacement::Alternating,
+    )?;
     let ransac = RansacConfig {
         threshold_px,
         confidence,
@@ -513,7 +519,11 @@ fn tracking(
     if n < 2 {
         bail!("{}: needs at least 2 frames", seq_dir.display());
     }
-    let (mut extractor, mut matcher) = (features::extractor(&cfg)?, matching::matcher(&cfg)?);
+    let placement = supermvo_config::NetworkPlacement::Alternating;
+    let (mut extractor, mut matcher) = (
+        features::extractor(&cfg, placement)?,
+        matching::matcher(&cfg, placement)?,
+    );
     let mut tracker = Tracker::new(seq.calib, tracker_config(&cfg));
     let mut recorded = Vec::with_capacity(n);
     let (mut extract_ms, mut match_ms) = (Vec::new(), Vec::new());

@@ -6,7 +6,7 @@ use crate::record_cmd::InprocessRecording;
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use std::path::{Path, PathBuf};
-use supermvo_config::{Config, IngestMode};
+use supermvo_config::{Config, IngestMode, NetworkPlacement};
 use supermvo_dataset::{Camera, GrayImage, Sequence, Trajectory};
 use supermvo_eval::{evaluate, EvalOptions};
 use supermvo_geometry::{AlignmentKind, Pose};
@@ -390,7 +390,11 @@ fn run_inprocess(
         Some(path) => Some(InprocessRecording::create(path, args.recording.options())?),
         None => None,
     };
-    let (extractor, matcher) = network_cache((features::extractor(p)?, matching::matcher(p)?), p);
+    let networks = (
+        features::extractor(p, NetworkPlacement::Alternating)?,
+        matching::matcher(p, NetworkPlacement::Alternating)?,
+    );
+    let (extractor, matcher) = network_cache(networks, p);
     let extractor = features::with_lens(extractor, lens);
     let mut pipeline = VoPipeline::new(extractor, matcher, tracker, loops);
     if recording.is_some() {
@@ -507,11 +511,11 @@ fn run_multiprocess(
     // ONNX Runtime and the models, checked here before any stage starts: a missing one is
     // one clear error (as in process) instead of stages failing and being restarted
     drop(
-        features::extractor(&cfg.pipeline)
+        features::extractor(&cfg.pipeline, NetworkPlacement::SideBySide)
             .context("checking the front end before starting the daemon")?,
     );
     drop(
-        matching::matcher(&cfg.pipeline)
+        matching::matcher(&cfg.pipeline, NetworkPlacement::SideBySide)
             .context("checking the front end before starting the daemon")?,
     );
     let recording = match &args.recording.record {

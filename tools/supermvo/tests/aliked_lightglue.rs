@@ -11,6 +11,9 @@ use supermvo_dataset::{GrayImage, Sequence};
 use supermvo_geometry::essential::RansacConfig;
 use supermvo_inference::lighterglue::{LightGlue, LightGlueConfig};
 use supermvo_inference::{models, Features, Matcher, Matches};
+
+const ALTERNATING: supermvo_config::NetworkPlacement =
+    supermvo_config::NetworkPlacement::Alternating;
 use supermvo_vo::pairs::essential_inliers;
 
 /// 5-point RANSAC inliers (1 px, 0.999) of `m` between `a` and `b` under `seq`'s calibration.
@@ -32,10 +35,13 @@ fn consecutive_kitti_frames_give_many_epipolar_inliers_and_beat_orb() {
         ..Default::default()
     };
     let mut aliked =
-        supermvo_pipeline::features::extractor(&cfg(Frontend::AlikedLightglue)).unwrap();
-    let mut glue = supermvo_pipeline::matching::matcher(&cfg(Frontend::AlikedLightglue)).unwrap();
-    let mut orb = supermvo_pipeline::features::extractor(&cfg(Frontend::Orb)).unwrap();
-    let mut orb_match = supermvo_pipeline::matching::matcher(&cfg(Frontend::Orb)).unwrap();
+        supermvo_pipeline::features::extractor(&cfg(Frontend::AlikedLightglue), ALTERNATING)
+            .unwrap();
+    let mut glue =
+        supermvo_pipeline::matching::matcher(&cfg(Frontend::AlikedLightglue), ALTERNATING).unwrap();
+    let mut orb = supermvo_pipeline::features::extractor(&cfg(Frontend::Orb), ALTERNATING).unwrap();
+    let mut orb_match =
+        supermvo_pipeline::matching::matcher(&cfg(Frontend::Orb), ALTERNATING).unwrap();
     let mut full = LightGlue::new(
         &models::model_path("lightglue"),
         "lightglue",

@@ -82,10 +82,16 @@ fn relative_pose(dir: &Path, a: usize, b: usize, lens: Lens) -> Pair {
     let cfg = supermvo_config::PipelineConfig::default();
     let keypoint_lens = (lens == Lens::Keypoints).then_some(camera);
     let mut extractor = supermvo_pipeline::features::with_lens(
-        supermvo_pipeline::features::extractor(&cfg).unwrap(),
+        supermvo_pipeline::features::extractor(
+            &cfg,
+            supermvo_config::NetworkPlacement::Alternating,
+        )
+        .unwrap(),
         keypoint_lens,
     );
-    let mut matcher = supermvo_pipeline::matching::matcher(&cfg).unwrap();
+    let mut matcher =
+        supermvo_pipeline::matching::matcher(&cfg, supermvo_config::NetworkPlacement::Alternating)
+            .unwrap();
     let (fa, fb) = (
         extractor.extract(&load(a)).unwrap(),
         extractor.extract(&load(b)).unwrap(),
