@@ -37,7 +37,9 @@ pub struct FrameOutput {
     pub stamp: f64,
     /// State.
     pub state: TrackingState,
-    /// The camera's pose in the world, when estimated.
+    /// The camera's pose in the world, when estimated (`pose` in reports: its 3x4
+    /// row-major matrix).
+    #[serde(rename = "pose")]
     pub t_world_cam: Option<Pose>,
     /// Keypoints detected.
     pub keypoints: usize,
@@ -69,7 +71,8 @@ pub struct LatePose {
     pub index: usize,
     /// Timestamp, seconds.
     pub stamp: f64,
-    /// The camera's pose in the world.
+    /// The camera's pose in the world (`pose` in reports).
+    #[serde(rename = "pose")]
     pub t_world_cam: Pose,
 }
 
