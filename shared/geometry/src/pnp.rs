@@ -10,7 +10,7 @@
 //! Gauss-Newton refinement then minimises the reprojection error on all inliers.
 
 pub use crate::pose_refinement::{refine_pose, refine_pose_robust};
-use crate::{Mat3, Vec3};
+use crate::{Mat3, Pose, Vec3};
 use nalgebra::{SMatrix, SVector};
 
 /// Settings of PnP RANSAC.
@@ -40,10 +40,8 @@ impl Default for PnpConfig {
 /// A PnP result.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PnpEstimate {
-    /// Rotation of `T_cam_world`.
-    pub r: Mat3,
-    /// Translation of `T_cam_world`.
-    pub t: Vec3,
+    /// The camera's pose.
+    pub t_cam_world: Pose,
     /// Inlier flags.
     pub inliers: Vec<bool>,
 }
@@ -55,8 +53,9 @@ impl PnpEstimate {
     }
 }
 
-/// EPnP from six or more correspondences (single null vector); `None` if degenerate.
-pub fn epnp(points_world: &[Vec3], bearings: &[Vec3]) -> Option<(Mat3, Vec3)> {
+/// EPnP from six or more correspondences (single null vector): `T_cam_world`, `None` if
+/// degenerate.
+pub fn epnp(points_world: &[Vec3], bearings: &[Vec3]) -> Option<Pose> {
     let n = points_world.len().min(bearings.len());
     if n < 6 {
         return None;
@@ -131,7 +130,7 @@ pub fn epnp(points_world: &[Vec3], bearings: &[Vec3]) -> Option<(Mat3, Vec3)> {
         .collect();
     // absolute orientation: p_cam = R p_world + t
     let sim = crate::umeyama(&points_world[..n], &pc, false).ok()?;
-    Some((sim.rotation_matrix(), sim.translation))
+    Some(Pose::new(sim.rotation_matrix(), sim.translation))
 }
 
 /// Squared reprojection error, in normalised image units, of world point `p` under
@@ -186,7 +185,7 @@ pub fn solve_pnp_ransac(
         }
         let pw: Vec<Vec3> = idx.iter().map(|&i| points_world[i]).collect();
         let bw: Vec<Vec3> = idx.iter().map(|&i| bearings[i]).collect();
-        let Some((r, t)) = epnp(&pw, &bw) else {
+        let Some(Pose { r, t }) = epnp(&pw, &bw) else {
             continue;
         };
         let c = count(&r, &t);
@@ -200,23 +199,29 @@ pub fn solve_pnp_ransac(
             );
         }
     }
-    let (mut r, mut t, _) = best?;
+    let (r, t, _) = best?;
+    let mut t_cam_world = Pose::new(r, t);
     // refine on the inliers, re-selecting them with the refined pose
     for _ in 0..3 {
+        let Pose { r, t } = &t_cam_world;
         let inl: Vec<usize> = (0..n)
-            .filter(|&i| reprojection_sq(&r, &t, &points_world[i], &bearings[i]) < thr_sq)
+            .filter(|&i| reprojection_sq(r, t, &points_world[i], &bearings[i]) < thr_sq)
             .collect();
         if inl.len() < 6 {
             break;
         }
         let pw: Vec<Vec3> = inl.iter().map(|&i| points_world[i]).collect();
         let bw: Vec<Vec3> = inl.iter().map(|&i| bearings[i]).collect();
-        (r, t) = refine_pose(&r, &t, &pw, &bw, 20);
+        t_cam_world = refine_pose(&t_cam_world, &pw, &bw, 20);
     }
+    let Pose { r, t } = &t_cam_world;
     let inliers = (0..n)
-        .map(|i| reprojection_sq(&r, &t, &points_world[i], &bearings[i]) < thr_sq)
+        .map(|i| reprojection_sq(r, t, &points_world[i], &bearings[i]) < thr_sq)
         .collect();
-    Some(PnpEstimate { r, t, inliers })
+    Some(PnpEstimate {
+        t_cam_world,
+        inliers,
+    })
 }
 
 #[cfg(test)]
@@ -282,7 +287,7 @@ mod tests {
                 q / q.z
             })
             .collect();
-        let (re, te) = epnp(&pts, &bearings).unwrap();
+        let Pose { r: re, t: te } = epnp(&pts, &bearings).unwrap();
         assert!(crate::rotation_angle(&(re.transpose() * r)) < 1e-8);
         assert!((te - t).norm() < 1e-7);
     }
@@ -294,8 +299,9 @@ mod tests {
         let bearings = noisy_bearings(&pts, (&r, &t), (f, 1.0, 99), 60);
         let est = solve_pnp_ransac(&pts, &bearings, f, &PnpConfig::default()).unwrap();
         assert!(est.inlier_count() >= 135, "{}", est.inlier_count());
-        assert!(crate::rotation_angle(&(est.r.transpose() * r)).to_degrees() < 0.05);
-        assert!((est.t - t).norm() < 0.02);
+        let Pose { r: re, t: te } = est.t_cam_world;
+        assert!(crate::rotation_angle(&(re.transpose() * r)).to_degrees() < 0.05);
+        assert!((te - t).norm() < 0.02);
     }
 
     /// The robust refinement converges to one pose whatever inlier set the start came from:
@@ -307,7 +313,9 @@ mod tests {
         let f = 700.0;
         let bearings = noisy_bearings(&pts, (&r, &t), (f, 2.0, 7), 50);
         let robust = |r0: &Mat3, t0: &Vec3| {
-            refine_pose_robust(r0, t0, &pts, &bearings, (1.0 / f, 6.0 / f), 30)
+            let start = Pose::new(*r0, *t0);
+            let p = refine_pose_robust(&start, &pts, &bearings, (1.0 / f, 6.0 / f), 30);
+            (p.r, p.t)
         };
         let a = robust(
             &(so3_exp(&Vec3::new(0.005, 0.0, 0.0)) * r),

@@ -8,7 +8,7 @@
 //! Conventions: `T_cam_world = (r, t)`, perturbed on the left; bearings are normalised
 //! image coordinates `(x, y, 1)`; thresholds are in normalised units (pixels / focal).
 
-use crate::{Mat3, Vec3};
+use crate::{Pose, Vec3};
 use nalgebra::{SMatrix, SVector};
 use supermvo_optim::lm::{minimise, LeastSquares, LmParams};
 use supermvo_optim::projection::reprojection;
@@ -27,12 +27,12 @@ struct PoseOnly<'a> {
 }
 
 impl LeastSquares for PoseOnly<'_> {
-    type State = (Mat3, Vec3);
+    type State = Pose;
     type System = System;
     type Step = SVector<f64, 6>;
 
     /// Sum of squared errors, each capped (a point behind the camera counts the cap).
-    fn cost(&self, (r, t): &(Mat3, Vec3)) -> f64 {
+    fn cost(&self, Pose { r, t }: &Pose) -> f64 {
         self.points_world
             .iter()
             .zip(self.bearings)
@@ -41,7 +41,7 @@ impl LeastSquares for PoseOnly<'_> {
     }
 
     /// `None` when fewer than six correspondences are left to constrain the pose.
-    fn linearize(&mut self, (r, t): &(Mat3, Vec3)) -> Option<System> {
+    fn linearize(&mut self, Pose { r, t }: &Pose) -> Option<System> {
         let mut h = SMatrix::<f64, 6, 6>::zeros();
         let mut g = SVector::<f64, 6>::zeros();
         let mut used = 0;
@@ -79,9 +79,9 @@ impl LeastSquares for PoseOnly<'_> {
         a.cholesky().map(|c| c.solve(&(-g)))
     }
 
-    fn retract(&self, (r, t): &(Mat3, Vec3), d: &SVector<f64, 6>) -> (Mat3, Vec3) {
+    fn retract(&self, Pose { r, t }: &Pose, d: &SVector<f64, 6>) -> Pose {
         let dr = so3_exp(&Vec3::new(d[0], d[1], d[2]));
-        (dr * r, dr * t + Vec3::new(d[3], d[4], d[5]))
+        Pose::new(dr * r, dr * t + Vec3::new(d[3], d[4], d[5]))
     }
 
     fn step_norm(&self, d: &SVector<f64, 6>) -> f64 {
@@ -90,44 +90,38 @@ impl LeastSquares for PoseOnly<'_> {
 }
 
 /// Levenberg-Marquardt on the squared reprojection errors of the given correspondences,
-/// from `T_cam_world = (r, t)`, for at most `iterations` linearisations.
+/// from `t_cam_world`, for at most `iterations` linearisations.
 pub fn refine_pose(
-    r: &Mat3,
-    t: &Vec3,
+    t_cam_world: &Pose,
     points_world: &[Vec3],
     bearings: &[Vec3],
     iterations: usize,
-) -> (Mat3, Vec3) {
+) -> Pose {
     let mut problem = PoseOnly {
         points_world,
         bearings,
         robust: None,
     };
     let params = LmParams::marquardt(1e-6, 1e-12, 8, iterations);
-    minimise(&mut problem, (*r, *t), params).0
+    minimise(&mut problem, *t_cam_world, params).0
 }
 
-/// Refines `T_cam_world = (r, t)` on every correspondence under a robust loss, so that the
+/// Refines `t_cam_world` on every correspondence under a robust loss, so that the
 /// result is a smooth function of the data rather than of which points a threshold happened
 /// to select: iteratively reweighted Gauss-Newton with Huber weights (threshold `k`,
 /// normalised units) and weight zero beyond `cutoff`.
 pub fn refine_pose_robust(
-    r: &Mat3,
-    t: &Vec3,
+    t_cam_world: &Pose,
     points_world: &[Vec3],
     bearings: &[Vec3],
     (k, cutoff): (f64, f64),
     iterations: usize,
-) -> (Mat3, Vec3) {
+) -> Pose {
     let mut problem = PoseOnly {
         points_world,
         bearings,
         robust: Some((Kernel::Huber(k), cutoff)),
     };
-    minimise(
-        &mut problem,
-        (*r, *t),
-        LmParams::gauss_newton(iterations, 1e-10),
-    )
-    .0
+    let params = LmParams::gauss_newton(iterations, 1e-10);
+    minimise(&mut problem, *t_cam_world, params).0
 }

@@ -44,9 +44,10 @@ fn agrees_with_opencv() {
         let est = solve_pnp_ransac(&pw, &px, f, &cfg).unwrap();
         let (tr, tt) = (mat(&case["true_r"]), vec3(&case["true_t"]));
         let (cr, ct) = (mat(&case["cv_r"]), vec3(&case["cv_t"]));
-        let r_err = rotation_angle(&(est.r.transpose() * tr)).to_degrees();
+        let (est_r, est_t) = (est.t_cam_world.r, est.t_cam_world.t);
+        let r_err = rotation_angle(&(est_r.transpose() * tr)).to_degrees();
         let cv_r_err = rotation_angle(&(cr.transpose() * tr)).to_degrees();
-        let (t_err, cv_t_err) = ((est.t - tt).norm(), (ct - tt).norm());
+        let (t_err, cv_t_err) = ((est_t - tt).norm(), (ct - tt).norm());
         let planted = case["outliers"]
             .as_array()
             .unwrap()

@@ -8,7 +8,7 @@ use super::frame::bearing;
 use super::projection::LastFrame;
 use super::{FrameMeta, FrameOutput, Keyframe, Tracker, TrackingState};
 use supermvo_geometry::pnp::{reprojection_sq, solve_pnp_ransac, PnpConfig, PnpEstimate};
-use supermvo_geometry::{Mat3, Pose, Vec3};
+use supermvo_geometry::{Pose, Vec3};
 use supermvo_inference::{Features, Matches};
 
 /// The frame's matches to landmarks: those through the reference keyframe's matches first,
@@ -139,8 +139,7 @@ impl Tracker {
                 let predicted = self.predict()?;
                 tracing::debug!(frame = input.index, "keyframe PnP failed: motion model");
                 Some(PnpEstimate {
-                    r: predicted.r,
-                    t: predicted.t,
+                    t_cam_world: predicted,
                     inliers: vec![false; lm.points.len()],
                 })
             })
@@ -190,8 +189,7 @@ impl Tracker {
         // a prediction is coarser than a PnP pose: search twice as far
         let predicted = first.inlier_count() == 0;
         let radius = self.cfg.map_search_radius_px * if predicted { 2.0 } else { 1.0 };
-        let first_pose = Pose::new(first.r, first.t);
-        let from_map = self.search_local_map(cur, &first_pose, &taken, &skip, radius);
+        let from_map = self.search_local_map(cur, &first.t_cam_world, &taken, &skip, radius);
         for &(b, id) in &from_map {
             lm.pairs.push((b, id));
             lm.points.push(self.map.landmarks[&id].p);
@@ -215,19 +213,17 @@ impl Tracker {
         let (all_p, all_b) = (&lm.points, &lm.bearings);
         let from_map = lm.pairs.len() - lm.from_keyframe;
         let thr_sq = (pnp.threshold_px / self.focal()).powi(2);
-        let inliers_at = |r: &Mat3, t: &Vec3| -> Vec<bool> {
-            all_p
-                .iter()
-                .zip(all_b)
-                .map(|(p, b)| reprojection_sq(r, t, p, b) < thr_sq)
-                .collect()
+        let agrees = |pose: &Pose, i: usize| {
+            reprojection_sq(&pose.r, &pose.t, &all_p[i], &all_b[i]) < thr_sq
         };
-        let (mut r, mut t) = (first.r, first.t);
+        let inliers_at =
+            |pose: &Pose| -> Vec<bool> { (0..all_p.len()).map(|i| agrees(pose, i)).collect() };
+        let mut t_cam_world = first.t_cam_world;
         if first.inlier_count() == 0 {
             // motion-model prediction: a PnP RANSAC over the local map's matches
             let e = solve_pnp_ransac(all_p, all_b, self.focal(), pnp)
                 .filter(|e| e.inlier_count() >= self.cfg.min_tracked)?;
-            (r, t) = (e.r, e.t);
+            t_cam_world = e.t_cam_world;
         }
         let mut inlier: Vec<bool> = first
             .inliers
@@ -239,35 +235,34 @@ impl Tracker {
             // refine the pose on both sets, re-selecting inliers with the refined pose
             for _ in 0..2 {
                 let sel: Vec<usize> = (0..all_p.len())
-                    .filter(|&i| reprojection_sq(&r, &t, &all_p[i], &all_b[i]) < thr_sq)
+                    .filter(|&i| agrees(&t_cam_world, i))
                     .collect();
                 if sel.len() < self.cfg.min_tracked {
                     break;
                 }
                 let sp: Vec<Vec3> = sel.iter().map(|&i| all_p[i]).collect();
                 let sb: Vec<Vec3> = sel.iter().map(|&i| all_b[i]).collect();
-                (r, t) = supermvo_geometry::pnp::refine_pose(&r, &t, &sp, &sb, 10);
+                t_cam_world = supermvo_geometry::pnp::refine_pose(&t_cam_world, &sp, &sb, 10);
             }
-            inlier = inliers_at(&r, &t);
+            inlier = inliers_at(&t_cam_world);
         }
         if self.cfg.robust_refinement {
             // the final pose: a smooth function of every match, not of the selection above
             let thr = thr_sq.sqrt();
-            let (r2, t2) = supermvo_geometry::pnp::refine_pose_robust(
-                &r,
-                &t,
+            let robust = supermvo_geometry::pnp::refine_pose_robust(
+                &t_cam_world,
                 all_p,
                 all_b,
                 (0.5 * thr, 3.0 * thr),
                 10,
             );
-            let inlier2 = inliers_at(&r2, &t2);
+            let inlier2 = inliers_at(&robust);
             if inlier2.iter().filter(|&&x| x).count() >= self.cfg.min_tracked {
-                (r, t, inlier) = (r2, t2, inlier2);
+                (t_cam_world, inlier) = (robust, inlier2);
             }
         }
         let fit = PoseFit {
-            t_cam_world: Pose::new(r, t),
+            t_cam_world,
             inlier,
         };
         (fit.tracked() >= self.cfg.min_tracked).then_some(fit)
@@ -448,6 +443,7 @@ mod tests {
     use super::*;
     use crate::tracker::TrackerConfig;
     use supermvo_dataset::Calibration;
+    use supermvo_geometry::Mat3;
 
     /// 60 landmarks 10-40 m ahead of a camera at the origin; the keypoints of 54 of them lie
     /// 2.4 px from their projections in scattered directions (beyond the 2 px gate, within
