@@ -74,24 +74,26 @@ impl<'g, G: LieGroup<D>, const D: usize> Lm<'g, G, D> {
     /// One iteration: linearise, then try dampings until a step is accepted or lambda
     /// exceeds its bound. Returns false once the optimiser has stopped.
     pub fn step(&mut self) -> bool {
-        let mut problem = GraphProblem {
-            graph: self.graph,
-            solver: &mut self.solver,
-        };
-        let taken = self.driver.step(&mut problem);
-        self.graph.values.clone_from(self.driver.state());
-        taken
+        self.drive(|driver, problem| driver.step(problem))
     }
 
     /// Runs to convergence with GTSAM's stopping rules.
     pub fn optimize(&mut self) -> LmSummary {
+        self.drive(|driver, problem| driver.optimize(problem))
+    }
+
+    /// Runs the driver on the graph's factors, then writes its values back to the graph.
+    fn drive<R>(
+        &mut self,
+        run: impl FnOnce(&mut LevenbergMarquardt<Vec<G>>, &mut GraphProblem<'_, G, D>) -> R,
+    ) -> R {
         let mut problem = GraphProblem {
             graph: self.graph,
             solver: &mut self.solver,
         };
-        let summary = self.driver.optimize(&mut problem);
+        let result = run(&mut self.driver, &mut problem);
         self.graph.values.clone_from(self.driver.state());
-        summary
+        result
     }
 }
 
