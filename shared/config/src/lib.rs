@@ -173,6 +173,10 @@ pub struct PipelineConfig {
     pub features_workers: usize,
     /// Keyframes in the local bundle-adjustment window (0 disables it), [0, 30].
     pub ba_window: usize,
+    /// The window chosen by covisibility: the new keyframe and the keyframes sharing at
+    /// least this many landmarks with it, the most shared first, up to `ba_window` in all;
+    /// 0 (the default): the last `ba_window` keyframes, [0, 1000].
+    pub ba_min_shared: usize,
     /// New keyframe when fewer landmarks are tracked than this fraction of the reference
     /// keyframe's (ORB-SLAM's rule); 0 (the default) leaves only the fixed count and the
     /// frame limit, [0, 1].
@@ -274,6 +278,7 @@ impl Default for PipelineConfig {
             device: Device::Cpu,
             features_workers: 1,
             ba_window: 6,
+            ba_min_shared: 0,
             keyframe_ratio: 0.0,
             relocalisation_frames: 5,
             pnp_gate_widening: 1.5,
@@ -397,6 +402,7 @@ impl PipelineConfig {
         range("matching_threads", self.matching_threads, 0, 64)?;
         range("features_workers", self.features_workers, 1, 8)?;
         range("ba_window", self.ba_window, 0, 30)?;
+        range("ba_min_shared", self.ba_min_shared, 0, 1000)?;
         range("relocalisation_frames", self.relocalisation_frames, 0, 100)?;
         range(
             "backfill_frames",

@@ -25,6 +25,7 @@ use supermvo_vo::tracker::{FrameMeta, FrameOutput, Tracker, TrackerConfig, Track
 pub fn tracker_config(cfg: &PipelineConfig) -> TrackerConfig {
     let base = TrackerConfig {
         local_ba_window: cfg.ba_window,
+        local_ba_min_shared: cfg.ba_min_shared,
         keyframe_ratio: cfg.keyframe_ratio,
         relocalisation_frames: cfg.relocalisation_frames,
         weak_gate_factor: cfg.pnp_gate_widening,

@@ -145,6 +145,32 @@ impl Map {
         let oldest = (id + 1).saturating_sub(keep);
         self.keyframe_keypoints.retain(|&k, _| k >= oldest);
     }
+    /// The covisibility of keyframe `kf`: every other keyframe of the current map segment
+    /// that observes a landmark `kf` observes, with how many such landmarks (the weight of
+    /// their edge in the covisibility graph), the most shared first (ties: the newer first).
+    /// Derived from the landmarks' observations, so it is never out of date.
+    pub(crate) fn covisible(&self, kf: usize) -> Vec<(usize, usize)> {
+        let mut shared: BTreeMap<usize, usize> = BTreeMap::new();
+        for lm in self.landmarks.values() {
+            if !lm.obs.iter().any(|(k, _)| *k == kf) {
+                continue;
+            }
+            let mut seen: Vec<usize> = lm
+                .obs
+                .iter()
+                .map(|(k, _)| *k)
+                .filter(|&k| k != kf && k >= self.segment_start)
+                .collect();
+            seen.sort_unstable();
+            seen.dedup();
+            for k in seen {
+                *shared.entry(k).or_default() += 1;
+            }
+        }
+        let mut by_weight: Vec<(usize, usize)> = shared.into_iter().collect();
+        by_weight.sort_by(|a, b| b.1.cmp(&a.1).then(b.0.cmp(&a.0)));
+        by_weight
+    }
     /// Registers a keyframe's `T_cam_world` and returns its id.
     pub(crate) fn new_keyframe_id(&mut self, t_cam_world: Pose) -> usize {
         self.keyframe_poses.push(t_cam_world);
@@ -207,6 +233,27 @@ mod tests {
         )
         .sqrt()
             * F
+    }
+
+    /// Two keyframes' weight is the number of landmarks both observe; keyframes before the
+    /// current map segment do not count.
+    #[test]
+    fn covisibility_counts_the_landmarks_two_keyframes_share() {
+        let mut map = Map::new(F);
+        for i in 0..4 {
+            map.new_keyframe_id(at(Vec3::new(i as f64, 0.0, 0.0)));
+        }
+        let b = Vec3::new(0.0, 0.0, 1.0);
+        let p = Vec3::new(0.0, 0.0, 10.0);
+        // keyframe 3 shares three landmarks with 2, two with 1, one with 0
+        map.add_landmark(p, vec![(0, b), (1, b), (2, b), (3, b)], &[0.0]);
+        map.add_landmark(p, vec![(1, b), (2, b), (3, b)], &[0.0]);
+        map.add_landmark(p, vec![(2, b), (3, b)], &[0.0]);
+        map.add_landmark(p, vec![(0, b), (1, b)], &[0.0]);
+        assert_eq!(map.covisible(3), vec![(2, 3), (1, 2), (0, 1)]);
+        assert_eq!(map.covisible(0), vec![(1, 2), (3, 1), (2, 1)]);
+        map.segment_start = 1;
+        assert_eq!(map.covisible(3), vec![(2, 3), (1, 2)]);
     }
 
     #[test]

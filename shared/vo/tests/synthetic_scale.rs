@@ -687,3 +687,33 @@ fn the_scale_holds_on_a_long_straight_road_with_gaussian_noise() {
         assert!(worst < 0.05, "scene {seed}: scale changed by {worst:.4}");
     }
 }
+
+/// Not a check, a measurement (docs/decisions/2026-12-02-scale-with-heavy-tailed-keypoint-noise.md):
+/// the 600-frame straight drive with the heavy-tailed keypoint noise, three scenes, each
+/// local-BA window choice; prints the scale of the last 50-frame stretch over the first's,
+/// and the worst change of any stretch. `cargo test --release -p supermvo-vo --test
+/// synthetic_scale -- --ignored --nocapture heavy_tailed`.
+#[test]
+#[ignore]
+fn scale_on_a_long_heavy_tailed_drive_by_ba_window() {
+    let drive = Drive {
+        frames: 600,
+        straight: true,
+        missed: 0.3,
+        ..Drive::default()
+    };
+    for (window, min_shared) in [(6, 0), (12, 0), (12, 15), (20, 15), (20, 30)] {
+        let cfg = TrackerConfig {
+            local_ba_window: window,
+            local_ba_min_shared: min_shared,
+            ..TrackerConfig::default()
+        };
+        let per_scene: Vec<(f64, f64)> = (0..3)
+            .map(|seed| {
+                let steps = scale_over(&run_with(seed, 1.0, 0.1, cfg.clone(), drive), 50);
+                (steps[steps.len() - 1] / steps[0], worst_change(&steps))
+            })
+            .collect();
+        println!("window {window}, min shared {min_shared}: (last / first, worst) {per_scene:.3?}");
+    }
+}

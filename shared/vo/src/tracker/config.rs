@@ -30,6 +30,10 @@ pub struct TrackerConfig {
     pub keyframe_ratio: f64,
     /// Keyframes in the local bundle adjustment window (0 disables it).
     pub local_ba_window: usize,
+    /// The local BA window chosen by covisibility: the new keyframe and the keyframes that
+    /// share at least this many landmarks with it, the most shared first, up to
+    /// `local_ba_window` in all; 0: the last `local_ba_window` keyframes.
+    pub local_ba_min_shared: usize,
     /// Local-map search: after the pose from the keyframe matches, landmarks of the local
     /// window that the keyframe does not carry are projected into the frame and matched to
     /// keypoints within this radius (pixels) by descriptor; 0 disables it.
@@ -120,6 +124,7 @@ impl Default for TrackerConfig {
             max_frames_between_keyframes: 3,
             keyframe_ratio: 0.0,
             local_ba_window: 6,
+            local_ba_min_shared: 0,
             map_search_radius_px: 10.0,
             map_search_max_distance: 0.25,
             local_map_keyframes: 20,

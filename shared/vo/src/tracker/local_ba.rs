@@ -23,36 +23,63 @@ pub struct BaStats {
 }
 
 impl Tracker {
-    /// Local bundle adjustment over the last `local_ba_window` keyframes (the two oldest fixed) and
-    /// the landmarks they observe at least twice; writes the refined poses and points back.
-    pub(crate) fn local_ba(&mut self) {
-        let started = std::time::Instant::now();
+    /// The keyframes a local bundle adjustment optimises, in id order (`None`: too few
+    /// for one). With `local_ba_min_shared` 0, the last `local_ba_window` keyframes of the
+    /// current map; otherwise the newest keyframe and those sharing at least that many
+    /// landmarks with it, the most covisible first, at most `local_ba_window` in all (as
+    /// ORB-SLAM and stella_vslam choose them): in a weak stretch, where a keyframe comes
+    /// every frame, the window then reaches as far back as its landmarks do.
+    fn ba_keyframes(&self) -> Option<Vec<usize>> {
         let window = self.cfg.local_ba_window;
         let n = self.map.keyframe_poses.len();
         if window < 3 || n < 3 {
-            return;
+            return None;
         }
-        let first = n.saturating_sub(window).max(self.map.segment_start);
-        if n - first < 3 {
+        let newest = n - 1;
+        let mut ids: Vec<usize> = if self.cfg.local_ba_min_shared == 0 {
+            (n.saturating_sub(window).max(self.map.segment_start)..n).collect()
+        } else {
+            let covisible = self.map.covisible(newest);
+            std::iter::once(newest)
+                .chain(
+                    covisible
+                        .iter()
+                        .filter(|&&(_, shared)| shared >= self.cfg.local_ba_min_shared)
+                        .map(|&(k, _)| k)
+                        .take(window - 1),
+                )
+                .collect()
+        };
+        ids.sort_unstable();
+        (ids.len() >= 3).then_some(ids)
+    }
+
+    /// Local bundle adjustment over [`Tracker::ba_keyframes`] (the oldest one or two held
+    /// fixed) and the landmarks they observe, with those landmarks' observations from other
+    /// keyframes of the map held fixed as anchors; writes the refined poses and points back.
+    pub(crate) fn local_ba(&mut self) {
+        let started = std::time::Instant::now();
+        let Some(window) = self.ba_keyframes() else {
             return;
-        }
-        // Points seen in the window; their observations from older keyframes of this map
+        };
+        // Points seen in the window; their observations from other keyframes of this map
         // enter too, with those keyframes held fixed as anchors (they carry the scale).
         let mut point_ids = Vec::new();
         let mut observations = Vec::new();
         let mut slot: std::collections::BTreeMap<usize, usize> =
-            (first..n).enumerate().map(|(i, k)| (k, i)).collect();
+            window.iter().enumerate().map(|(i, &k)| (k, i)).collect();
+        let in_window: std::collections::BTreeSet<usize> = window.iter().copied().collect();
         let mut anchors = Vec::new();
         for (&id, lm) in self.map.landmarks.iter() {
-            let in_window = lm.obs.iter().filter(|(k, _)| *k >= first).count();
+            let seen_in_window = lm.obs.iter().filter(|(k, _)| in_window.contains(k)).count();
             let usable: Vec<&(usize, Vec3)> = lm
                 .obs
                 .iter()
                 .filter(|(k, _)| {
-                    *k >= self.map.segment_start && (self.cfg.ba_anchors || *k >= first)
+                    *k >= self.map.segment_start && (self.cfg.ba_anchors || in_window.contains(k))
                 })
                 .collect();
-            if in_window < 1 || usable.len() < 2 {
+            if seen_in_window < 1 || usable.len() < 2 {
                 continue;
             }
             let pi = point_ids.len();
@@ -78,12 +105,12 @@ impl Tracker {
         } else {
             self.cfg.ba_fixed_with_anchors
         };
-        let mut poses = self.map.keyframe_poses[first..].to_vec();
+        let mut poses: Vec<_> = window.iter().map(|&k| self.map.keyframe_poses[k]).collect();
         poses.extend(anchors.iter().map(|&k| self.map.keyframe_poses[k]));
         let mut ba = crate::ba::LocalBa {
             poses,
-            fixed: (first..n)
-                .map(|k| k < first + window_fixed)
+            fixed: (0..window.len())
+                .map(|i| i < window_fixed)
                 .chain(anchors.iter().map(|_| true))
                 .collect(),
             points: point_ids
@@ -95,7 +122,7 @@ impl Tracker {
         };
         let (c0, c1) = ba.solve(10);
         let stats = BaStats {
-            keyframes: n - first,
+            keyframes: window.len(),
             points: point_ids.len(),
             observations: ba.observations.len(),
             cost_before: c0,
@@ -103,14 +130,17 @@ impl Tracker {
             ms: 0.0,
         };
         tracing::debug!(
-            keyframes = n - first,
+            keyframes = window.len(),
+            anchors = anchors.len(),
             points = point_ids.len(),
             observations = ba.observations.len(),
             cost_before = c0,
             cost_after = c1,
             "local BA"
         );
-        self.map.keyframe_poses[first..].copy_from_slice(&ba.poses[..n - first]);
+        for (i, &k) in window.iter().enumerate() {
+            self.map.keyframe_poses[k] = ba.poses[i];
+        }
         for (i, &id) in point_ids.iter().enumerate() {
             if let Some(lm) = self.map.landmarks.get_mut(&id) {
                 lm.p = ba.points[i];
