@@ -15,9 +15,13 @@ threads must give its trajectory byte for byte (lossless hand-off): the script c
 says for the other splits whether they do (the thread count may change the networks' last
 bits).
 
-    python3 tools/bench_lossless.py [--seq DIR] [--rounds 3] [--frames 80] [-- RUN ARGS]
+    python3 tools/bench_lossless.py [--seq DIR] [--rounds 3] [--frames 80] [--loop-closure]
+                                    [--settings 2] [-- RUN ARGS]
 
-Arguments after `--` go to every run (for example `--keyframe-matching`).
+Arguments after `--` go to every run (for example `--keyframe-matching`). Loop closure is off
+unless `--loop-closure` (then the lossless daemon's tracker waits for the back end's verdict
+on every keyframe, and the mean time per frame, which counts those waits, is printed too);
+`--settings N` runs only the first N settings.
 """
 import argparse
 import json
@@ -55,7 +59,7 @@ def config_with(features, matching, path):
 
 def run(seq, mode, cfg, out, frames, extra):
     cmd = [BIN, "run", seq, "--mode", mode, "--quiet", "--config", cfg, "--out", out,
-           "--max-frames", str(frames), "--no-loop-closure", "--name", f"lossless{os.getpid()}"]
+           "--max-frames", str(frames), "--name", f"lossless{os.getpid()}"]
     r = subprocess.run(cmd + extra, capture_output=True, text=True)
     if r.returncode != 0:
         sys.exit(f"bench_lossless: `{' '.join(cmd + extra)}` failed:\n{r.stderr[-2000:]}")
@@ -65,11 +69,13 @@ def run(seq, mode, cfg, out, frames, extra):
         traj = f.read()
     if mode == "inprocess":
         ms = rep["timing_ms"]["frame_median"]
+        mean = statistics.mean(rep["timing_ms"]["per_frame"])
         cpu = None
     else:
         ms = rep["metrics"]["frame_interval_ms"]["p50"]
+        mean = rep["metrics"]["frame_interval_ms"]["mean"]
         cpu = {k: v["p50"] for k, v in rep["metrics"]["stage_cpu_ms"].items()}
-    return ms, cpu, traj
+    return ms, mean, cpu, traj
 
 
 def main():
@@ -77,18 +83,24 @@ def main():
     ap.add_argument("--seq", default=SEQ)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--frames", type=int, default=80)
+    ap.add_argument("--loop-closure", action="store_true")
+    ap.add_argument("--settings", type=int, default=len(SETTINGS))
     ap.add_argument("extra", nargs="*", help="arguments for every run (after --)")
     args = ap.parse_args()
-    results = {label: [] for label, *_ in SETTINGS}
-    cpu = {label: [] for label, *_ in SETTINGS}
+    settings = SETTINGS[:max(2, args.settings)]
+    if not args.loop_closure:
+        args.extra = ["--no-loop-closure"] + args.extra
+    results = {label: [] for label, *_ in settings}
+    means = {label: [] for label, *_ in settings}
+    cpu = {label: [] for label, *_ in settings}
     reference = None
-    same = {label: True for label, *_ in SETTINGS}
+    same = {label: True for label, *_ in settings}
     with tempfile.TemporaryDirectory(prefix="bench_lossless_") as tmp:
         for rnd in range(args.rounds):
-            for k, (label, mode, ft, mt) in enumerate(SETTINGS):
+            for k, (label, mode, ft, mt) in enumerate(settings):
                 cfg = os.path.join(tmp, f"{k}.toml")
                 config_with(ft, mt, cfg)
-                ms, c, traj = run(args.seq, mode, cfg, os.path.join(tmp, f"r{rnd}_{k}"),
+                ms, mean, c, traj = run(args.seq, mode, cfg, os.path.join(tmp, f"r{rnd}_{k}"),
                                   args.frames, args.extra)
                 if reference is None:
                     reference = traj
@@ -96,15 +108,17 @@ def main():
                 if k == 1 and traj != reference:
                     sys.exit(f"bench_lossless: '{label}' gave another trajectory than in process")
                 results[label].append(ms)
+                if mean is not None:
+                    means[label].append(mean)
                 if c:
                     cpu[label].append(c)
                 print(f"round {rnd + 1} {label}: {ms:.1f} ms/frame", flush=True)
     peer = statistics.median(results[SETTINGS[0][0]])
     print(f"\n{os.path.basename(os.path.normpath(args.seq))}, {args.frames} frames, "
           f"{args.rounds} rounds, {os.cpu_count()} CPUs, extra args: {' '.join(args.extra) or '-'}")
-    print("| setting | ms per frame (median) | / in process | runs | stage CPU p50 (core-ms: features, matching, tracking) | trajectory of the in-process run |")
-    print("|---|---|---|---|---|---|")
-    for label, *_ in SETTINGS:
+    print("| setting | ms per frame (median) | / in process | runs | mean ms per frame (median of runs) | stage CPU p50 (core-ms: features, matching, tracking) | trajectory of the in-process run |")
+    print("|---|---|---|---|---|---|---|")
+    for label, *_ in settings:
         med = statistics.median(results[label])
         runs = ", ".join(f"{v:.1f}" for v in results[label])
         stages = "-"
@@ -112,7 +126,8 @@ def main():
             stages = ", ".join(
                 f"{statistics.median(c[s] for c in cpu[label]):.0f}"
                 for s in ("features", "matching", "tracking"))
-        print(f"| {label} | {med:.1f} | {med / peer:.2f} | {runs} | {stages} | "
+        mean = f"{statistics.median(means[label]):.1f}" if means[label] else "-"
+        print(f"| {label} | {med:.1f} | {med / peer:.2f} | {runs} | {mean} | {stages} | "
               f"{'byte for byte' if same[label] else 'no'} |")
 
 

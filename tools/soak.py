@@ -49,7 +49,8 @@ def main() -> int:
 
     m = json.loads((args.out / "metrics.json").read_text())
     lines = (args.out / "frames.csv").read_text().splitlines()[1:]
-    rows = [l.split(",") for l in lines if l]
+    # one row per frame: the later lines that give an earlier frame's final pose are not frames
+    rows = [r for r in (l.split(",") for l in lines if l) if r[3] not in ("backfilled", "loop_corrected")]
     seqs = [int(r[0]) for r in rows]
     total = loops * len(times)
     expected = list(range(total + 1))

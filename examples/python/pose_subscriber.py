@@ -27,7 +27,7 @@ import time
 
 import iceoryx2 as iox2
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 MAX_BACKFILLED = 16
 STATUS_END_OF_STREAM = 4
 STAGE_INGEST, STAGE_TRACKING = 0, 3
@@ -80,6 +80,7 @@ class PoseMsg(ctypes.Structure):
         ("match_next", ctypes.c_uint32),
         ("scale", ctypes.c_double),
         ("backfilled_count", ctypes.c_uint32),
+        ("corrections", ctypes.c_uint32),
         ("backfilled", BackfilledPose * MAX_BACKFILLED),
     ]
 

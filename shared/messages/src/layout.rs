@@ -7,7 +7,9 @@
 //! All fields are little-endian (the only byte order iceoryx2 shares memory in here) and
 //! naturally aligned; `#[repr(C)]` puts them in declaration order with padding where shown.
 
-use crate::{BackendState, BackfilledPose, FrameHeader, PoseMsg, Progress, SCHEMA_VERSION};
+use crate::{
+    BackendState, BackfilledPose, CorrectionMsg, FrameHeader, PoseMsg, Progress, SCHEMA_VERSION,
+};
 use std::mem::{align_of, offset_of, size_of};
 
 /// One field of a documented layout: name, byte offset, size in bytes.
@@ -52,6 +54,7 @@ pub fn documented() -> Vec<(&'static str, usize, usize, Vec<Field>)> {
                 ("match_next", offset_of!(PoseMsg, match_next), 4),
                 ("scale", offset_of!(PoseMsg, scale), 8),
                 ("backfilled_count", offset_of!(PoseMsg, backfilled_count), 4),
+                ("corrections", offset_of!(PoseMsg, corrections), 4),
                 ("backfilled", offset_of!(PoseMsg, backfilled), 16 * 104),
             ],
         ),
@@ -91,6 +94,7 @@ pub fn documented() -> Vec<(&'static str, usize, usize, Vec<Field>)> {
                 ("seq", offset_of!(BackendState, seq), 8),
                 ("frame", offset_of!(BackendState, frame), 8),
                 ("has_pose", offset_of!(BackendState, has_pose), 4),
+                ("corrections", offset_of!(BackendState, corrections), 4),
                 ("t_world_cam", offset_of!(BackendState, t_world_cam), 96),
                 ("scale", offset_of!(BackendState, scale), 8),
                 ("recorded", offset_of!(BackendState, recorded), 8),
@@ -98,14 +102,28 @@ pub fn documented() -> Vec<(&'static str, usize, usize, Vec<Field>)> {
                 ("finished", offset_of!(BackendState, finished), 4),
             ],
         ),
+        (
+            "supermvo::CorrectionMsg",
+            size_of::<CorrectionMsg>(),
+            align_of::<CorrectionMsg>(),
+            vec![
+                ("closed", offset_of!(CorrectionMsg, closed), 4),
+                ("corrections", offset_of!(CorrectionMsg, corrections), 4),
+                ("scale", offset_of!(CorrectionMsg, scale), 8),
+                ("rotation", offset_of!(CorrectionMsg, rotation), 72),
+                ("translation", offset_of!(CorrectionMsg, translation), 24),
+                ("loop_query", offset_of!(CorrectionMsg, loop_query), 8),
+                ("loop_match", offset_of!(CorrectionMsg, loop_match), 8),
+            ],
+        ),
     ]
 }
 
-// The layouts of schema version 3. Raising SCHEMA_VERSION means a layout changed: check
+// The layouts of schema version 4. Raising SCHEMA_VERSION means a layout changed: check
 // every line below against the structs, then docs/daemon.md and examples/python/.
 const _: () = {
     assert!(
-        SCHEMA_VERSION == 3,
+        SCHEMA_VERSION == 4,
         "schema changed: update the layout checks, docs/daemon.md and examples/python"
     );
     assert!(size_of::<FrameHeader>() == 96 && align_of::<FrameHeader>() == 8);
@@ -119,6 +137,7 @@ const _: () = {
     assert!(offset_of!(PoseMsg, landmarks) == 120 && offset_of!(PoseMsg, reference) == 128);
     assert!(offset_of!(PoseMsg, match_next) == 136 && offset_of!(PoseMsg, scale) == 144);
     assert!(offset_of!(PoseMsg, backfilled_count) == 152);
+    assert!(offset_of!(PoseMsg, corrections) == 156);
     assert!(offset_of!(PoseMsg, backfilled) == 160 && crate::MAX_BACKFILLED == 16);
     assert!(size_of::<BackfilledPose>() == 104 && align_of::<BackfilledPose>() == 8);
     assert!(offset_of!(BackfilledPose, t_world_cam) == 8);
@@ -128,6 +147,11 @@ const _: () = {
     assert!(size_of::<BackendState>() == 144 && align_of::<BackendState>() == 8);
     assert!(offset_of!(BackendState, t_world_cam) == 24 && offset_of!(BackendState, scale) == 120);
     assert!(offset_of!(BackendState, recorded) == 128 && offset_of!(BackendState, finished) == 140);
+    assert!(offset_of!(BackendState, corrections) == 20);
+    assert!(size_of::<CorrectionMsg>() == 128 && align_of::<CorrectionMsg>() == 8);
+    assert!(offset_of!(CorrectionMsg, scale) == 8 && offset_of!(CorrectionMsg, rotation) == 16);
+    assert!(offset_of!(CorrectionMsg, translation) == 88);
+    assert!(offset_of!(CorrectionMsg, loop_query) == 112);
 };
 
 #[cfg(test)]

@@ -20,7 +20,7 @@ use std::time::{SystemTime, UNIX_EPOCH};
 pub use iceoryx2;
 
 /// Version of the message layouts; every header carries it and receivers reject others.
-pub const SCHEMA_VERSION: u32 = 3;
+pub const SCHEMA_VERSION: u32 = 4;
 
 /// Frames in flight between ingest and tracking at most (credit-based flow control). The
 /// data services keep at least this much history so a restarted stage can pick up every
@@ -233,6 +233,9 @@ pub struct PoseMsg {
     pub scale: f64,
     /// How many entries of `backfilled` hold poses.
     pub backfilled_count: u32,
+    /// Loop corrections ([`CorrectionMsg`]) the tracker had applied when it posed this
+    /// frame: the world frame its poses are in.
+    pub corrections: u32,
     /// Earlier frames this frame posed (the first `backfilled_count`): those seen while the
     /// tracker initialised, posed on the map this frame's initialisation built.
     pub backfilled: [BackfilledPose; MAX_BACKFILLED],
@@ -273,6 +276,9 @@ pub struct BackendState {
     pub frame: u64,
     /// 1 when `t_world_cam` holds the last estimated pose.
     pub has_pose: u32,
+    /// Loop corrections issued so far; `t_world_cam` is in the world frame after all of
+    /// them, so a restarted tracker continues there.
+    pub corrections: u32,
     /// Last estimated `T_world_cam`, 3x4 row-major.
     pub t_world_cam: [f64; 12],
     /// Map scale of the tracker at that pose, or 0.
@@ -283,6 +289,31 @@ pub struct BackendState {
     pub state: u32,
     /// 1 once the end of the stream was recorded and the trajectory written.
     pub finished: u32,
+}
+
+/// The back end's verdict on one keyframe (payload of the `corrections` service; the header
+/// names the keyframe): whether it closed a loop, and if so the similarity that moves the
+/// tracker's map and poses into the corrected world, `x -> scale * rotation * x +
+/// translation`. Every keyframe gets one; in lossless mode the tracker waits for it before
+/// the next frame, so the daemon stays bit-identical to one process.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("supermvo::CorrectionMsg")]
+pub struct CorrectionMsg {
+    /// 1 when the keyframe closed a loop and the similarity below is to be applied.
+    pub closed: u32,
+    /// Corrections issued so far, this one included.
+    pub corrections: u32,
+    /// Scale of the similarity.
+    pub scale: f64,
+    /// Rotation, 3x3 row-major.
+    pub rotation: [f64; 9],
+    /// Translation.
+    pub translation: [f64; 3],
+    /// Sequence number of the keyframe that recognised the place, or -1.
+    pub loop_query: i64,
+    /// Sequence number of the earlier keyframe it recognised, or -1.
+    pub loop_match: i64,
 }
 
 /// What a stage did with one frame, or a life-cycle event (payload of the `progress`
@@ -540,6 +571,10 @@ pub enum Topic {
     Poses,
     /// `MatchRequest`, tracking → matching: a frame the tracker needs matched after all.
     MatchRequests,
+    /// `[f32]` features of each new keyframe ([`FeatureLayout`]), tracking → back end.
+    Keyframes,
+    /// `CorrectionMsg`, back end → tracking: the loop-closing verdict on each keyframe.
+    Corrections,
     /// `BackendState`, back end → tracking (restore), monitors.
     Backend,
     /// `Progress`, every stage → supervisor and monitors.
@@ -556,12 +591,14 @@ pub enum Topic {
 
 impl Topic {
     /// Every topic.
-    pub const ALL: [Topic; 10] = [
+    pub const ALL: [Topic; 12] = [
         Topic::Frames,
         Topic::Features,
         Topic::Matches,
         Topic::Poses,
         Topic::MatchRequests,
+        Topic::Keyframes,
+        Topic::Corrections,
         Topic::Backend,
         Topic::Progress,
         Topic::Control,
@@ -577,6 +614,8 @@ impl Topic {
             Topic::Matches => "matches",
             Topic::Poses => "poses",
             Topic::MatchRequests => "match_requests",
+            Topic::Keyframes => "keyframes",
+            Topic::Corrections => "corrections",
             Topic::Backend => "backend",
             Topic::Progress => "progress",
             Topic::Control => "control",
@@ -656,7 +695,9 @@ impl Services {
             | Topic::Features
             | Topic::Matches
             | Topic::Poses
-            | Topic::MatchRequests => Qos {
+            | Topic::MatchRequests
+            | Topic::Keyframes
+            | Topic::Corrections => Qos {
                 history: HISTORY,
                 buffer: 4 * HISTORY,
                 safe_overflow: false,

@@ -1,160 +1,36 @@
-//! Back end: records every frame's outcome as it arrives (one line per frame in
-//! `frames.csv`, flushed at once, so a crash loses nothing; a frame posed later, by the
-//! initialisation after it, gets a second, `backfilled` line then), publishes what it has recorded
-//! for a restarted tracker, and writes the trajectory at the end of the stream or on SIGTERM.
+//! Back end: records every frame's outcome as it arrives (`frames.csv`, see
+//! [`crate::frame_log`]), closes loops over the keyframes tracking sends and answers each
+//! keyframe with its verdict (see [`crate::loop_closing`]), publishes what it has recorded
+//! for a restarted tracker, and writes the trajectory (loop-corrected) at the end of the
+//! stream or on SIGTERM.
 //!
-//! A restarted back end reads `frames.csv` back and continues after its last line.
-//! Loop closure and the pose graph run in the tracking process today, beside the tracker, so
-//! that their corrections reach it before the next frame (see `tracking.rs`); moving them and
-//! local mapping here is issue 21's work.
+//! A restarted back end reads `frames.csv` and `keyframes.bin` back, rebuilds the loop
+//! closer from them and continues after the last line. Local mapping (triangulation and
+//! bundle adjustment over the covisible keyframes) still runs in the tracking process.
 
 use crate::common::{StageArgs, StageContext};
+use crate::frame_log::{read_lines, record, Recorder};
 use crate::inbox::Inbox;
+use crate::loop_closing::{LoopClosing, PosedFrame};
 use anyhow::{Context, Result};
-use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Duration;
-use supermvo_dataset::{hold_last_pose, write_trajectory, Trajectory, TrajectoryFormat};
+use supermvo_dataset::{hold_last_pose, write_trajectory, Sequence, Trajectory, TrajectoryFormat};
 use supermvo_geometry::Pose;
+use supermvo_inference::Features;
+use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
+use supermvo_messages::iceoryx2::prelude::*;
 use supermvo_messages::{
-    now_ns, BackendState, FrameHeader, MessageError, PoseMsg, StageKind, Status, Topic,
+    now_ns, BackendState, CorrectionMsg, FeatureLayout, FrameHeader, MessageError, PoseMsg,
+    StageKind, Status, Topic,
 };
 
-/// One recorded frame.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
-pub struct Record {
-    /// Sequence number.
-    pub seq: u64,
-    /// Frame index.
-    pub frame: u64,
-    /// Timestamp, s.
-    pub stamp: f64,
-    /// What became of the frame.
-    pub status: String,
-    /// Tracker state code (see [`PoseMsg::state`]).
-    pub state: u32,
-    /// `T_world_cam` when estimated.
-    pub pose: Option<[f64; 12]>,
-    /// Map scale.
-    pub scale: f64,
-    /// Whether it became a keyframe.
-    pub keyframe: bool,
-    /// Capture → tracking result, ms.
-    pub latency_ms: f64,
-}
+pub use crate::frame_log::{read_records, status_name, Record, BACKFILLED, LOOP_CORRECTED};
 
-/// Name of a status in `frames.csv`.
-pub fn status_name(s: Status) -> &'static str {
-    match s {
-        Status::Ok => "ok",
-        Status::Dropped => "dropped",
-        Status::Unreadable => "unreadable",
-        Status::Lost => "lost",
-        Status::EndOfStream => "end",
-        Status::NoReference => "no_reference",
-    }
-}
-
-const CSV_HEADER: &str =
-    "seq,frame,stamp,status,state,keyframe,scale,latency_ms,r00,r01,r02,tx,r10,r11,r12,ty,r20,r21,r22,tz";
-
-impl Record {
-    fn csv(&self) -> String {
-        let mut s = format!(
-            "{},{},{},{},{},{},{},{}",
-            self.seq,
-            self.frame,
-            self.stamp,
-            self.status,
-            self.state,
-            self.keyframe as u8,
-            self.scale,
-            self.latency_ms
-        );
-        for i in 0..12 {
-            s.push(',');
-            if let Some(p) = &self.pose {
-                s.push_str(&p[i].to_string());
-            }
-        }
-        s
-    }
-
-    fn parse(line: &str) -> Option<Self> {
-        let f: Vec<&str> = line.split(',').collect();
-        if f.len() != 20 {
-            return None;
-        }
-        let pose = if f[8].is_empty() {
-            None
-        } else {
-            let mut p = [0.0; 12];
-            for (i, v) in p.iter_mut().enumerate() {
-                *v = f[8 + i].parse().ok()?;
-            }
-            Some(p)
-        };
-        Some(Self {
-            seq: f[0].parse().ok()?,
-            frame: f[1].parse().ok()?,
-            stamp: f[2].parse().ok()?,
-            status: f[3].to_string(),
-            state: f[4].parse().ok()?,
-            keyframe: f[5] == "1",
-            scale: f[6].parse().ok()?,
-            latency_ms: f[7].parse().ok()?,
-            pose,
-        })
-    }
-}
-
-/// Status of a `frames.csv` line that gives an earlier frame's pose (`seq`), known only once
-/// a later frame's initialisation built the map it is posed on.
-pub const BACKFILLED: &str = "backfilled";
-
-/// Reads `frames.csv` (the back end's record), skipping a torn last line: one record per
-/// frame, with the poses that [`BACKFILLED`] lines gave later in their frames' records.
-pub fn read_records(path: &Path) -> Result<Vec<Record>> {
-    let text = match std::fs::read_to_string(path) {
-        Ok(t) => t,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
-        Err(e) => return Err(e).with_context(|| format!("reading {}", path.display())),
-    };
-    let (late, mut records): (Vec<Record>, Vec<Record>) = text
-        .lines()
-        .skip(1)
-        .filter_map(Record::parse)
-        .partition(|r| r.status == BACKFILLED);
-    let late: std::collections::HashMap<u64, [f64; 12]> = late
-        .into_iter()
-        .filter_map(|r| r.pose.map(|p| (r.seq, p)))
-        .collect();
-    for r in records.iter_mut().filter(|r| r.pose.is_none()) {
-        r.pose = late.get(&r.seq).copied();
-    }
-    Ok(records)
-}
-
-/// The records with the loop-corrected poses the tracking stage wrote to `out` (when it
-/// closed loops) in place of the recorded ones.
-pub fn with_corrections(out: &Path, records: &[Record]) -> Vec<Record> {
-    let corrected = crate::tracking::read_corrected(&out.join(crate::tracking::CORRECTED_FILE));
-    records
-        .iter()
-        .map(|r| match (r.pose, corrected.get(&r.seq)) {
-            (Some(_), Some(p)) => Record {
-                pose: Some(*p),
-                ..r.clone()
-            },
-            _ => r.clone(),
-        })
-        .collect()
-}
-
-/// Writes the trajectory of the records (loop-corrected where the tracking stage closed
-/// loops): see [`write_trajectories`].
+/// Writes the trajectory of the records (`read_records`: loop-corrected where loops were
+/// closed): see [`write_trajectories`].
 pub fn write_outputs(out: &Path, records: &[Record]) -> Result<Vec<usize>> {
-    let frames: Vec<(f64, Option<Pose>)> = with_corrections(out, records)
+    let frames: Vec<(f64, Option<Pose>)> = records
         .iter()
         .filter(|r| r.status != "end")
         .map(|r| (r.stamp, r.pose.as_ref().map(Pose::from_row_major_3x4)))
@@ -204,137 +80,113 @@ pub fn write_trajectories(out: &Path, frames: &[(f64, Option<Pose>)]) -> Result<
     Ok(unposed)
 }
 
-/// The record on disk; in memory only what a restarted tracker needs (memory stays flat
-/// however long the run).
-struct Recorder {
-    path: PathBuf,
-    file: std::fs::File,
-    count: usize,
-    last: Option<Record>,
-    last_pose: Option<([f64; 12], f64)>,
+type CorrectionPublisher = supermvo_messages::iceoryx2::port::publisher::Publisher<
+    supermvo_messages::Ipc,
+    CorrectionMsg,
+    FrameHeader,
+>;
+
+fn send_verdict(p: &CorrectionPublisher, h: FrameHeader, v: CorrectionMsg) -> Result<()> {
+    let s = p
+        .loan_uninit()
+        .map_err(|e| MessageError::ipc("loaning a correction", e))?;
+    let mut s = s.write_payload(v);
+    *s.user_header_mut() = h;
+    s.send()
+        .map_err(|e| MessageError::ipc("sending a correction", e))?;
+    Ok(())
 }
 
-impl Recorder {
-    fn open(out: &Path) -> Result<Self> {
-        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-        let path = out.join("frames.csv");
-        let records = read_records(&path)?;
-        let mut file = std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(&path)
-            .with_context(|| format!("opening {}", path.display()))?;
-        if records.is_empty() {
-            // a fresh file (or one torn before its first record): start it over
-            file.set_len(0)?;
-            writeln!(file, "{CSV_HEADER}")?;
+/// The end of the run: the loop-corrected poses into `frames.csv` and `loops.json` (when
+/// loops were closed), then the trajectory files.
+fn finish(out: &Path, rec: &mut Recorder, loops: Option<&LoopClosing>) -> Result<()> {
+    if let Some(l) = loops.filter(|l| !l.loops().is_empty()) {
+        for (seq, p) in l.corrected() {
+            rec.correct(seq, p)?;
         }
-        let last_pose = records
-            .iter()
-            .rev()
-            .find_map(|r| r.pose.map(|p| (p, r.scale)));
-        Ok(Self {
-            path,
-            file,
-            count: records.len(),
-            last: records.last().cloned(),
-            last_pose,
-        })
+        let path = out.join("loops.json");
+        std::fs::write(&path, serde_json::to_string_pretty(&l.loops())?)
+            .with_context(|| format!("writing {}", path.display()))?;
+        tracing::info!(loops = l.loops().len(), "loop-corrected trajectory written");
     }
-
-    fn add(&mut self, r: Record) -> Result<()> {
-        writeln!(self.file, "{}", r.csv())
-            .and_then(|_| self.file.flush())
-            .with_context(|| format!("writing {}", self.path.display()))?;
-        if let Some(p) = r.pose {
-            self.last_pose = Some((p, r.scale));
-        }
-        self.count += 1;
-        self.last = Some(r);
-        Ok(())
-    }
-
-    /// Records the pose of earlier frame `seq` (a [`BACKFILLED`] line): the frame keeps its
-    /// own record, so neither the count nor the last record changes.
-    fn backfill(&mut self, seq: u64, pose: [f64; 12], scale: f64) -> Result<()> {
-        let line = Record {
-            seq,
-            frame: 0,
-            stamp: 0.0,
-            status: BACKFILLED.to_string(),
-            state: 1,
-            pose: Some(pose),
-            scale,
-            keyframe: false,
-            latency_ms: 0.0,
-        };
-        writeln!(self.file, "{}", line.csv())
-            .and_then(|_| self.file.flush())
-            .with_context(|| format!("writing {}", self.path.display()))
-    }
-
-    fn state(&self, finished: bool) -> BackendState {
-        let last = self.last.as_ref();
-        BackendState {
-            seq: last.map_or(0, |r| r.seq),
-            frame: last.map_or(0, |r| r.frame),
-            has_pose: self.last_pose.is_some() as u32,
-            t_world_cam: self.last_pose.map(|p| p.0).unwrap_or_default(),
-            scale: self.last_pose.map_or(0.0, |p| p.1),
-            recorded: self.count as u64,
-            state: last.map_or(0, |r| r.state),
-            finished: finished as u32,
-        }
-    }
-}
-
-fn record(h: &FrameHeader, p: &PoseMsg) -> Record {
-    let t_track = h.t_ns[StageKind::Tracking as usize];
-    Record {
-        seq: h.seq,
-        frame: h.frame,
-        stamp: h.stamp,
-        status: status_name(h.status()).to_string(),
-        state: p.state,
-        pose: (p.has_pose == 1).then_some(p.t_world_cam),
-        scale: p.scale,
-        keyframe: p.keyframe == 1,
-        latency_ms: if h.t_ns[0] > 0 && t_track >= h.t_ns[0] {
-            (t_track - h.t_ns[0]) as f64 * 1e-6
-        } else {
-            0.0
-        },
-    }
+    write_outputs(out, &read_records(&rec.path)?)?;
+    Ok(())
 }
 
 /// Runs the back end until the end of the stream has been recorded and SIGTERM arrives.
 pub fn run(args: &StageArgs) -> Result<()> {
     let cfg = args.load_config()?.pipeline;
     let mut rec = Recorder::open(&args.out)?;
+    let mut loops = match cfg.loop_closure {
+        true => {
+            let calib = Sequence::open_with_camera(&args.seq, cfg.camera.as_deref())?.calib;
+            Some(LoopClosing::open(
+                &args.out,
+                calib,
+                &read_lines(&rec.path)?,
+            )?)
+        }
+        false => None,
+    };
     let mut ctx = StageContext::new(StageKind::Backend, args.worker, &cfg)?;
     let poses = ctx.header_subscriber::<PoseMsg>(Topic::Poses)?;
+    let keyframes = ctx.slice_subscriber::<f32>(Topic::Keyframes)?;
     let state = ctx
         .services
         .plain_topic::<BackendState>(&ctx.node, Topic::Backend, false)?
         .publisher_builder()
         .create()
         .map_err(|e| MessageError::ipc("backend publisher", e))?;
+    let verdicts = ctx
+        .services
+        .header_topic::<CorrectionMsg>(&ctx.node, Topic::Corrections, false)?
+        .publisher_builder()
+        .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
+        .create()
+        .map_err(|e| MessageError::ipc("corrections publisher", e))?;
     let mut finished = rec.last.as_ref().is_some_and(|r| r.status == "end");
     let start = rec.last.as_ref().map_or(0, |r| r.seq + 1);
     let mut inbox: Inbox<PoseMsg> = Inbox::new(start, 1);
+    // keyframe features by seq, until their pose arrives
+    let mut keyframe_features: std::collections::HashMap<u64, Features> = Default::default();
     let gap = Duration::from_millis(cfg.gap_timeout_ms);
+    let state_now = |rec: &Recorder, loops: Option<&LoopClosing>, finished: bool| {
+        let mut s = rec.state(finished);
+        if let Some(l) = loops {
+            l.restore_state(&mut s, rec.last_pose_corrections());
+        }
+        s
+    };
+    let _ = verdicts.update_connections();
     if rec.count > 0 {
         state
-            .send_copy(rec.state(finished))
+            .send_copy(state_now(&rec, loops.as_ref(), finished))
             .map_err(|e| MessageError::ipc("backend state", e))?;
+        // a tracker may be waiting for the verdict this back end's predecessor owed it
+        if let Some((h, v)) = loops.as_ref().and_then(LoopClosing::last_verdict) {
+            send_verdict(&verdicts, h, v)?;
+        }
     }
     ctx.started();
+    let mut waited_since: Option<std::time::Instant> = None;
     while ctx.wait() {
         while let Some(s) = poses.receive().map_err(|e| MessageError::ipc("poses", e))? {
             let h = *s.user_header();
             h.check()?;
             inbox.insert(h, *s.payload(), now_ns());
         }
+        while let Some(s) = keyframes
+            .receive()
+            .map_err(|e| MessageError::ipc("keyframes", e))?
+        {
+            let h = *s.user_header();
+            h.check()?;
+            if h.seq >= inbox.next() {
+                keyframe_features.insert(h.seq, FeatureLayout::read(&h, s.payload())?);
+            }
+        }
+        // a restarted tracker's subscriber gets the verdicts in the history
+        let _ = verdicts.update_connections();
         let mut changed = false;
         loop {
             if !inbox.ready() {
@@ -349,6 +201,17 @@ pub fn run(args: &StageArgs) -> Result<()> {
                 }
                 break;
             }
+            // a keyframe waits for its features (sent before its pose) for up to the gap
+            if let Some((h, p, _)) = inbox.peek() {
+                let needs = loops.is_some() && p.keyframe == 1 && p.has_pose == 1;
+                if needs && !finished && !keyframe_features.contains_key(&h.seq) {
+                    let since = *waited_since.get_or_insert_with(std::time::Instant::now);
+                    if since.elapsed() < gap {
+                        break;
+                    }
+                }
+            }
+            waited_since = None;
             let Some((h, p, _received)) = inbox.pop() else {
                 break;
             };
@@ -356,104 +219,52 @@ pub fn run(args: &StageArgs) -> Result<()> {
             if finished {
                 continue;
             }
+            let features = keyframe_features.remove(&h.seq);
+            if let (Some(l), Some(f)) = (loops.as_mut(), features.as_ref()) {
+                l.log_keyframe(h.seq, f)?;
+            }
             rec.add(record(&h, &p))?;
             for b in p.backfilled_poses() {
                 rec.backfill(b.seq, b.t_world_cam, p.scale)?;
             }
+            if let Some(l) = loops.as_mut() {
+                let backfilled: Vec<(u64, [f64; 12])> = p
+                    .backfilled_poses()
+                    .iter()
+                    .map(|b| (b.seq, b.t_world_cam))
+                    .collect();
+                let frame = PosedFrame {
+                    seq: h.seq,
+                    pose: (p.has_pose == 1).then_some(p.t_world_cam),
+                    keyframe: p.keyframe == 1,
+                    corrections: p.corrections,
+                    backfilled: &backfilled,
+                };
+                if let Some(v) = l.add(frame, features.as_ref()) {
+                    send_verdict(&verdicts, h.forward(Status::Ok), v)?;
+                }
+            }
             changed = true;
             ctx.frame_done(&h, t_in, inbox.len());
             if h.status() == Status::EndOfStream {
-                write_outputs(&args.out, &read_records(&rec.path)?)?;
+                finish(&args.out, &mut rec, loops.as_ref())?;
                 finished = true;
                 ctx.finished();
             }
         }
+        keyframe_features.retain(|seq, _| *seq >= inbox.next());
         if changed {
             state
-                .send_copy(rec.state(finished))
+                .send_copy(state_now(&rec, loops.as_ref(), finished))
                 .map_err(|e| MessageError::ipc("backend state", e))?;
         }
         ctx.heartbeat_if_idle();
     }
     // SIGINT/SIGTERM: whatever was recorded becomes the trajectory
-    write_outputs(&args.out, &read_records(&rec.path)?)?;
+    if finished {
+        write_outputs(&args.out, &read_records(&rec.path)?)?;
+    } else {
+        finish(&args.out, &mut rec, loops.as_ref())?;
+    }
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn records_round_trip_exactly_and_torn_lines_are_skipped() {
-        let dir = tempfile::tempdir().unwrap();
-        let r = Record {
-            seq: 3,
-            frame: 3,
-            stamp: 0.310_344_1,
-            status: "ok".into(),
-            state: 1,
-            pose: Some([
-                0.1 + 0.2,
-                -1e-17,
-                3.0,
-                1.0 / 3.0,
-                0.0,
-                1.0,
-                0.0,
-                2.5,
-                0.0,
-                0.0,
-                1.0,
-                -7.25,
-            ]),
-            scale: 12.345_678_9,
-            keyframe: true,
-            latency_ms: 150.25,
-        };
-        let path = dir.path().join("frames.csv");
-        std::fs::write(&path, format!("{CSV_HEADER}\n{}\n3,3,0.", r.csv())).unwrap();
-        assert_eq!(read_records(&path).unwrap(), vec![r]);
-    }
-
-    /// A frame posed later (a `backfilled` line after its own) reads back as one record with
-    /// that pose; the count and the last record are the frames', as a restarted back end
-    /// needs them.
-    #[test]
-    fn backfilled_poses_join_their_frames_records() {
-        let dir = tempfile::tempdir().unwrap();
-        let mut rec = Recorder::open(dir.path()).unwrap();
-        let frame = |seq: u64, pose: Option<[f64; 12]>| Record {
-            seq,
-            frame: seq,
-            stamp: seq as f64 * 0.1,
-            status: "ok".into(),
-            state: if pose.is_some() { 1 } else { 0 },
-            pose,
-            scale: 0.0,
-            keyframe: pose.is_some(),
-            latency_ms: 1.0,
-        };
-        let pose = |x: f64| [1.0, 0.0, 0.0, x, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
-        rec.add(frame(0, Some(pose(0.0)))).unwrap();
-        rec.add(frame(1, None)).unwrap();
-        rec.add(frame(2, None)).unwrap();
-        rec.add(frame(3, Some(pose(3.0)))).unwrap();
-        rec.backfill(1, pose(1.0), 5.0).unwrap();
-        rec.backfill(2, pose(2.0), 5.0).unwrap();
-        let records = read_records(&rec.path).unwrap();
-        let poses: Vec<Option<f64>> = records.iter().map(|r| r.pose.map(|p| p[3])).collect();
-        assert_eq!(poses, [Some(0.0), Some(1.0), Some(2.0), Some(3.0)]);
-        assert_eq!(
-            records[1],
-            Record {
-                pose: Some(pose(1.0)),
-                ..frame(1, None)
-            }
-        );
-        drop(rec);
-        let reopened = Recorder::open(dir.path()).unwrap();
-        assert_eq!(reopened.count, 4);
-        assert_eq!(reopened.last.as_ref().map(|r| r.seq), Some(3));
-    }
 }

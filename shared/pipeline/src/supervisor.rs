@@ -16,8 +16,8 @@ use supermvo_config::Config;
 use supermvo_messages::iceoryx2::node::NodeView;
 use supermvo_messages::iceoryx2::prelude::*;
 use supermvo_messages::{
-    create_node, BackendState, FrameHeader, Ipc, MatchEntry, MatchRequest, MessageError, PoseMsg,
-    Progress, ProgressEvent, Services, StageKind, Status, Topic,
+    create_node, BackendState, CorrectionMsg, FrameHeader, Ipc, MatchEntry, MatchRequest,
+    MessageError, PoseMsg, Progress, ProgressEvent, Services, StageKind, Status, Topic,
 };
 
 /// What the supervisor runs.
@@ -258,7 +258,12 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
     }
     // a fresh run starts with a fresh record
     let _ = std::fs::remove_file(opts.out.join("frames.csv"));
-    for f in ["trajectory.tum.txt", "trajectory.kitti.txt"] {
+    for f in [
+        "trajectory.tum.txt",
+        "trajectory.kitti.txt",
+        crate::loop_closing::KEYFRAMES_FILE,
+        "loops.json",
+    ] {
         let _ = std::fs::remove_file(opts.out.join(f));
     }
     let config_path = opts.out.join("config.toml");
@@ -273,6 +278,11 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
         services.header_topic::<PoseMsg>(&node, Topic::Poses, true)?,
         services.header_topic::<MatchRequest>(&node, Topic::MatchRequests, true)?,
         services.plain_topic::<BackendState>(&node, Topic::Backend, true)?,
+    );
+    // tracking and the back end's loop closing
+    let _loop_closing = (
+        services.slice_topic::<f32>(&node, Topic::Keyframes, true)?,
+        services.header_topic::<CorrectionMsg>(&node, Topic::Corrections, true)?,
     );
     // the diagnostic views (lossy; stages publish on them only while someone listens)
     let _views = (

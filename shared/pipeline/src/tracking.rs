@@ -1,10 +1,13 @@
 //! Tracking: the VO tracker over the features and matches of each frame, publishing its
-//! result (pose, state and the reference keyframe for the next frame) on `poses`.
+//! result (pose, state and the reference keyframe for the next frame) on `poses`, each new
+//! keyframe to the back end, and applying the back end's loop corrections
+//! ([`crate::loop_feedback`]).
 //!
 //! A restarted tracker continues from the back end's last recorded pose and map scale.
 
 use crate::common::{receive_features, stamp, StageArgs, StageContext};
 use crate::inbox::Inbox;
+use crate::loop_feedback::LoopFeedback;
 use anyhow::Result;
 use std::time::Duration;
 use supermvo_config::PipelineConfig;
@@ -17,8 +20,6 @@ use supermvo_messages::{
     now_ns, BackendState, BackfilledPose, FrameHeader, MatchEntry, MatchRequest, MessageError,
     PoseMsg, StageKind, Status, Topic, ViewHeader, MAX_BACKFILLED,
 };
-use supermvo_vo::loops::{LoopCloser, LoopConfig};
-use supermvo_vo::pipeline::close_loops;
 use supermvo_vo::tracker::{FrameMeta, FrameOutput, Tracker, TrackerConfig, TrackingState};
 
 /// The tracker configuration the daemon and `supermvo run --mode inprocess` both use.
@@ -60,7 +61,8 @@ const _: () = assert!(supermvo_config::MAX_BACKFILL_FRAMES == MAX_BACKFILLED);
 
 /// A tracker result as a message payload (the tracker's frame indices are sequence numbers
 /// in the daemon, see `frame_meta`).
-pub fn pose_msg(o: &FrameOutput) -> PoseMsg {
+/// `corrections`: the loop corrections the tracker had applied.
+pub fn pose_msg(o: &FrameOutput, corrections: u32) -> PoseMsg {
     PoseMsg {
         state: match o.state {
             TrackingState::Initializing => 0,
@@ -81,6 +83,7 @@ pub fn pose_msg(o: &FrameOutput) -> PoseMsg {
         match_next: o.match_next as u32,
         scale: o.scale.unwrap_or(0.0),
         backfilled_count: o.backfilled.len().min(MAX_BACKFILLED) as u32,
+        corrections,
         backfilled: std::array::from_fn(|i| {
             o.backfilled
                 .get(i)
@@ -97,18 +100,6 @@ pub fn run(args: &StageArgs) -> Result<()> {
     let cfg = args.load_config()?.pipeline;
     let seq = Sequence::open_with_camera(&args.seq, cfg.camera.as_deref())?;
     let mut tracker = Tracker::new(seq.calib, tracker_config(&cfg));
-    // Loop closure runs beside the tracker, so that its corrections reach the tracker before
-    // the next frame exactly as in one process (lossless runs stay bit-identical).
-    let mut loops = cfg
-        .loop_closure
-        .then(|| LoopCloser::new(seq.calib, LoopConfig::default()));
-    let corrected_path = args.out.join(CORRECTED_FILE);
-    for stale in [
-        corrected_path.clone(),
-        corrected_path.with_file_name("loops.json"),
-    ] {
-        let _ = std::fs::remove_file(stale);
-    }
     let mut ctx = StageContext::new(StageKind::Tracking, args.worker, &cfg)?;
     let features = ctx.slice_subscriber::<f32>(Topic::Features)?;
     let matches = ctx.slice_subscriber::<MatchEntry>(Topic::Matches)?;
@@ -130,7 +121,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
         .map_err(|e| MessageError::ipc("match requests publisher", e))?;
 
     // restore: continue after what the back end has recorded
-    let mut start = 0;
+    let (mut start, mut applied) = (0, 0);
     while let Some(s) = backend
         .receive()
         .map_err(|e| MessageError::ipc("backend", e))?
@@ -138,6 +129,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
         let b = *s.payload();
         if b.recorded > 0 {
             start = b.seq + 1;
+            applied = b.corrections;
             if b.has_pose == 1 {
                 let scale = (b.scale > 0.0).then_some(b.scale);
                 tracker.restore(&Pose::from_row_major_3x4(&b.t_world_cam), scale);
@@ -147,6 +139,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
     if start > 0 {
         tracing::info!("restored: continuing at seq {start}");
     }
+    let mut loops = LoopFeedback::open(&ctx, &cfg, applied)?;
     let mut feats: Inbox<Option<Features>> = Inbox::new(start, 1);
     let mut pairs: Inbox<Vec<MatchEntry>> = Inbox::new(start, 1);
     let gap = Duration::from_millis(cfg.gap_timeout_ms);
@@ -163,9 +156,15 @@ pub fn run(args: &StageArgs) -> Result<()> {
             h.check()?;
             pairs.insert(h, s.payload().to_vec(), now_ns());
         }
+        if let Some(l) = loops.as_mut() {
+            l.receive(&mut tracker)?;
+        }
         let _ = publisher.update_connections();
         let _ = requests.update_connections();
         loop {
+            if loops.as_mut().is_some_and(LoopFeedback::holds_next_frame) {
+                break;
+            }
             let untried = |(fh, _, _): &&(FrameHeader, Option<Features>, u64)| {
                 fh.status() == Status::Ok && requested != Some(fh.seq)
             };
@@ -182,11 +181,9 @@ pub fn run(args: &StageArgs) -> Result<()> {
                         .map(|f| FrameView::new(f, None));
                     feats.pop();
                     pairs.reset_to(fh.seq + 1);
-                    let closed = loops
-                        .as_mut()
-                        .and_then(|l| close_loops(l, &mut tracker, &out).map(|_| loop_edge(l)));
-                    let msg = pose_msg(&out);
-                    let h = publish(&publisher, fh.forward(Status::Ok), msg)?;
+                    let h = fh.forward(Status::Ok);
+                    let (msg, closed) = report_frame(&mut loops, &h, &out, &tracker)?;
+                    let h = publish(&publisher, h, msg)?;
                     publish_view(&views, &tracker, (h, msg), view, closed);
                     ctx.frame_done(&h, t_in, feats.len());
                     continue;
@@ -236,24 +233,15 @@ pub fn run(args: &StageArgs) -> Result<()> {
                         FrameView::new(&f, tracker.reference().map(|r| r.1).zip(m.as_ref()))
                     });
                     let out = tracker.step(frame_meta(&fh), f, m.as_ref());
-                    let closed = loops
-                        .as_mut()
-                        .and_then(|l| close_loops(l, &mut tracker, &out).map(|_| loop_edge(l)));
                     let mut h = fh.forward(Status::Ok);
                     h.t_ns[StageKind::Matching as usize] = mh.t_ns[StageKind::Matching as usize];
-                    let msg = pose_msg(&out);
+                    let (msg, closed) = report_frame(&mut loops, &h, &out, &tracker)?;
                     let h = publish(&publisher, h, msg)?;
                     publish_view(&views, &tracker, (h, msg), view, closed);
                     h
                 }
                 (st_f, st_m, _) => {
                     let st = if st_f != Status::Ok { st_f } else { st_m };
-                    if st == Status::EndOfStream {
-                        // before the end reaches the back end, which then writes the trajectory
-                        if let Some(l) = loops.as_ref().filter(|l| !l.loops().is_empty()) {
-                            write_corrected(&corrected_path, l)?;
-                        }
-                    }
                     let mut h = fh.forward(st);
                     h.t_ns[StageKind::Matching as usize] = mh.t_ns[StageKind::Matching as usize];
                     let msg = no_frame(&tracker);
@@ -273,11 +261,19 @@ pub fn run(args: &StageArgs) -> Result<()> {
     Ok(())
 }
 
-/// The frames of the loop just closed: `(query, match)`.
-fn loop_edge(l: &LoopCloser) -> (i64, i64) {
-    l.loops()
-        .last()
-        .map_or((-1, -1), |e| (e.query_frame as i64, e.match_frame as i64))
+/// A tracked frame's pose message, after its features went to the back end when it became a
+/// keyframe; with the loop the last correction closed, for the frame's view.
+fn report_frame(
+    loops: &mut Option<LoopFeedback>,
+    h: &FrameHeader,
+    out: &FrameOutput,
+    tracker: &Tracker,
+) -> Result<(PoseMsg, Option<(i64, i64)>)> {
+    let Some(l) = loops.as_mut() else {
+        return Ok((pose_msg(out, 0), None));
+    };
+    l.keyframe(h, out, tracker)?;
+    Ok((pose_msg(out, l.applied), l.take_closed()))
 }
 
 /// Publishes a tracked frame's view (built when a viewer listened), with the map's points on
@@ -304,48 +300,6 @@ fn publish_view(
         ..Default::default()
     };
     views.publish(header, &view);
-}
-
-/// Loop-corrected poses by sequence number, written by the tracking stage at the end of the
-/// stream when loops were closed (the back end's trajectory uses them).
-pub const CORRECTED_FILE: &str = "corrected.csv";
-
-fn write_corrected(path: &std::path::Path, loops: &LoopCloser) -> Result<()> {
-    use anyhow::Context as _;
-    let mut text = String::new();
-    for (seq, p) in loops.trajectory() {
-        let m = p.to_matrix();
-        let values: Vec<String> = (0..3)
-            .flat_map(|r| (0..4).map(move |c| (r, c)))
-            .map(|(r, c)| m[(r, c)].to_string())
-            .collect();
-        text.push_str(&format!("{seq},{}\n", values.join(",")));
-    }
-    let json = serde_json::to_string_pretty(&loops.loops())?;
-    std::fs::write(path.with_file_name("loops.json"), json)
-        .and_then(|_| std::fs::write(path, text))
-        .with_context(|| format!("writing {}", path.display()))?;
-    tracing::info!(
-        loops = loops.loops().len(),
-        "loop-corrected trajectory written"
-    );
-    Ok(())
-}
-
-/// Reads [`CORRECTED_FILE`]: `seq -> T_world_cam` (3x4, row-major).
-pub fn read_corrected(path: &std::path::Path) -> std::collections::HashMap<u64, [f64; 12]> {
-    let text = std::fs::read_to_string(path).unwrap_or_default();
-    text.lines()
-        .filter_map(|l| {
-            let f: Vec<&str> = l.split(',').collect();
-            let seq = f.first()?.parse().ok()?;
-            let mut p = [0.0; 12];
-            for (i, v) in p.iter_mut().enumerate() {
-                *v = f.get(i + 1)?.parse().ok()?;
-            }
-            Some((seq, p))
-        })
-        .collect()
 }
 
 /// The message for a frame the tracker did not see (dropped, unreadable, lost, end).

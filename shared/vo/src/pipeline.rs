@@ -1,5 +1,6 @@
 //! The in-process pipeline: extractor, matcher, tracker and loop closer one after the other,
-//! and the loop closer's feedback to the tracker that the daemon uses too.
+//! and the loop closer's feedback to the tracker (the daemon runs the same loop closer in its
+//! back-end process and sends the corrections back over shared memory).
 
 use crate::stage::Stage;
 use crate::tracker::{FrameInput, FrameMeta, FrameOutput, Tracker};
@@ -61,7 +62,7 @@ impl VoPipeline {
 }
 
 /// Hands one tracked frame to the loop closer and applies the correction it returns to the
-/// tracker: the feedback of the back end, shared by the in-process pipeline and the daemon.
+/// tracker before the next frame (the daemon's lossless hand-off reproduces this order).
 pub fn close_loops(
     loops: &mut crate::loops::LoopCloser,
     tracker: &mut Tracker,

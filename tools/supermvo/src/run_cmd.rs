@@ -10,7 +10,7 @@ use supermvo_config::{Config, IngestMode, NetworkPlacement};
 use supermvo_dataset::{Camera, GrayImage, Sequence, Trajectory};
 use supermvo_eval::{evaluate, EvalOptions};
 use supermvo_geometry::{AlignmentKind, Pose};
-use supermvo_pipeline::backend::{read_records, with_corrections, write_trajectories};
+use supermvo_pipeline::backend::{read_records, write_trajectories};
 use supermvo_pipeline::supervisor::{default_bin_dir, SupervisorOptions};
 use supermvo_pipeline::{features, matching, tracking};
 use supermvo_vo::loops::{LoopCloser, LoopConfig};
@@ -304,7 +304,7 @@ fn clear_previous_run(out: &Path) -> Result<()> {
         "processes.json",
         "config.toml",
         "loops.json",
-        "corrected.csv",
+        "keyframes.bin",
         "trajectory_xz.png",
         "xyz.png",
     ];
@@ -536,7 +536,7 @@ fn run_multiprocess(
     if let Some(r) = recording {
         r.finish()?;
     }
-    let records = with_corrections(&args.out, &read_records(&args.out.join("frames.csv"))?);
+    let records = read_records(&args.out.join("frames.csv"))?;
     let est: Vec<_> = records
         .iter()
         .filter_map(|r| {

@@ -1,5 +1,6 @@
 //! Loop closure end to end: on the synthetic `urban-loop` (a block driven 1.15 times) loops
-//! are found and the drift drops; the renderer and the VO run as a user runs them.
+//! are found and the drift drops; the renderer and the VO run as a user runs them. The
+//! daemon closes the same loops in its back-end process, bit for bit, across a kill -9.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
 mod common;
 
@@ -41,5 +42,92 @@ fn urban_loop_is_closed_and_the_drift_drops() {
     assert!(
         after < 0.003 * path,
         "APE {after:.3} m is over 0.3 % of {path:.0} m"
+    );
+    the_daemon_closes_the_same_loops_across_a_killed_back_end(&seq, tmp.path(), &a);
+}
+
+/// The lossless daemon, whose back-end process closes the loops and sends its corrections
+/// back to tracking, gives the in-process run's trajectory bit for bit, even with its back
+/// end killed (-9) after the first loops: the restarted back end rebuilds the loop closer
+/// from `frames.csv` and `keyframes.bin`, and the loops after the kill join the second lap
+/// to keyframes of the first that only the restored loop closer knows.
+fn the_daemon_closes_the_same_loops_across_a_killed_back_end(
+    seq: &std::path::Path,
+    tmp: &std::path::Path,
+    inprocess: &serde_json::Value,
+) {
+    use nix::sys::signal::{kill, Signal};
+    use nix::unistd::Pid;
+    let out = tmp.join("daemon");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_supermvo"))
+        .args(["run", seq.to_str().unwrap(), "--mode", "multiprocess", "-q"])
+        .args(["--name", &format!("loops-{}", std::process::id())])
+        .arg("--out")
+        .arg(&out)
+        .spawn()
+        .unwrap();
+    // the first loops close at frame 380 (see above); kill the back end a little later
+    let kill_at = 392;
+    let t0 = std::time::Instant::now();
+    let recorded = || {
+        std::fs::read_to_string(out.join("frames.csv"))
+            .map_or(0, |t| t.lines().filter(|l| l.contains(",ok,")).count())
+    };
+    while recorded() < kill_at {
+        assert!(t0.elapsed().as_secs() < 900, "the daemon stalled");
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the daemon ended early"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let processes: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("processes.json")).unwrap())
+            .unwrap();
+    let backend = processes
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|p| p["stage"] == "backend")
+        .and_then(|p| p["pid"].as_i64())
+        .unwrap();
+    kill(Pid::from_raw(backend as i32), Signal::SIGKILL).unwrap();
+    let killed_after = recorded();
+    eprintln!("killed the back end (pid {backend}) after {killed_after} frames");
+    assert!(child.wait().unwrap().success());
+
+    let metrics: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
+    let restarts = metrics["restarts"].as_array().unwrap();
+    assert_eq!(restarts.len(), 1, "{restarts:?}");
+    assert_eq!(restarts[0]["stage"], "backend");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let edges = |r: &serde_json::Value| -> Vec<(u64, u64)> {
+        r["loops"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|l| {
+                (
+                    l["query_frame"].as_u64().unwrap(),
+                    l["match_frame"].as_u64().unwrap(),
+                )
+            })
+            .collect()
+    };
+    assert_eq!(edges(&report), edges(inprocess));
+    assert!(
+        edges(&report)
+            .iter()
+            .any(|(q, _)| *q as usize > killed_after + 2),
+        "no loop closed after the restart: {:?}",
+        edges(&report)
+    );
+    let trajectory =
+        |dir: &std::path::Path| std::fs::read(dir.join("trajectory.kitti.txt")).unwrap();
+    assert!(
+        trajectory(&out) == trajectory(&tmp.join("with")),
+        "the daemon's loop-corrected trajectory differs from the in-process run's"
     );
 }

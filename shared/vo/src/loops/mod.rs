@@ -125,8 +125,10 @@ pub struct LoopCloser {
     vocabulary: Option<DMatrix<f32>>,
     loops: Vec<(usize, usize, Sim3, LoopEdge)>,
     pending: Vec<Detection>,
-    /// Correction the tracker has applied: tracker frame = `fix` * odometry frame.
-    fix: Sim3,
+    /// The tracker's world after `k` corrections is `fixes[k]` * the odometry frame
+    /// (`fixes[0]` is the identity); a tracker that has not yet applied the latest one (the
+    /// daemon's real-time mode) reports poses in an earlier world, and says which.
+    fixes: Vec<Sim3>,
     /// Every estimated frame: (frame, pose in the odometry frame, keyframe entry index, pose
     /// as reported).
     frames: Vec<(usize, Sim3, usize, Pose)>,
@@ -154,7 +156,7 @@ impl LoopCloser {
             vocabulary: None,
             loops: Vec::new(),
             pending: Vec::new(),
-            fix: Sim3::identity(),
+            fixes: vec![Sim3::identity()],
             frames: Vec::new(),
             disabled: None,
         }
@@ -187,11 +189,35 @@ impl LoopCloser {
         )
     }
 
+    /// Corrections issued so far (each returned by [`LoopCloser::add_keyframe`]).
+    pub fn corrections(&self) -> usize {
+        self.fixes.len() - 1
+    }
+
+    /// The tracker's world after `applied` corrections, relative to the odometry frame.
+    fn fix(&self, applied: usize) -> Sim3 {
+        self.fixes[applied.min(self.fixes.len() - 1)]
+    }
+
+    /// A pose reported after `applied` corrections, moved into the world after all of them.
+    pub fn in_latest_world(&self, t_world_cam: &Pose, applied: usize) -> Pose {
+        if applied >= self.corrections() {
+            return *t_world_cam;
+        }
+        let to_latest = self.fix(usize::MAX).compose(&self.fix(applied).inverse());
+        pose_of(&to_latest.compose(&sim3_of(t_world_cam)))
+    }
+
     /// Records a tracked non-keyframe (its pose as the tracker reported it), so that the
     /// corrected trajectory covers every frame.
     pub fn add_frame(&mut self, frame: usize, t_world_cam: &Pose) {
+        self.add_frame_at(frame, t_world_cam, self.corrections());
+    }
+
+    /// [`LoopCloser::add_frame`] for a pose the tracker reported after `applied` corrections.
+    pub fn add_frame_at(&mut self, frame: usize, t_world_cam: &Pose, applied: usize) {
         if let Some(k) = self.keyframes.len().checked_sub(1) {
-            let odom = self.fix.inverse().compose(&sim3_of(t_world_cam));
+            let odom = self.fix(applied).inverse().compose(&sim3_of(t_world_cam));
             self.frames.push((frame, odom, k, *t_world_cam));
         }
     }
@@ -205,7 +231,20 @@ impl LoopCloser {
         t_world_cam: &Pose,
         features: &Features,
     ) -> Option<Correction> {
-        let odom = self.fix.inverse().compose(&sim3_of(t_world_cam));
+        self.add_keyframe_at(frame, t_world_cam, features, self.corrections())
+    }
+
+    /// [`LoopCloser::add_keyframe`] for a pose the tracker reported after `applied`
+    /// corrections; a correction returned is relative to the world after all earlier ones
+    /// (the tracker applies them in order).
+    pub fn add_keyframe_at(
+        &mut self,
+        frame: usize,
+        t_world_cam: &Pose,
+        features: &Features,
+        applied: usize,
+    ) -> Option<Correction> {
+        let odom = self.fix(applied).inverse().compose(&sim3_of(t_world_cam));
         let opt = match self.keyframes.last() {
             // Chain the odometry onto the previous keyframe's best estimate.
             Some(prev) => prev.opt.compose(&prev.odom.inverse().compose(&odom)),
@@ -313,8 +352,8 @@ impl LoopCloser {
         let cur = &self.keyframes[j];
         let to_corrected = cur.opt.compose(&cur.odom.inverse());
         // Relative to what the tracker already applied.
-        let correction = to_corrected.compose(&self.fix.inverse());
-        self.fix = to_corrected;
+        let correction = to_corrected.compose(&self.fix(usize::MAX).inverse());
+        self.fixes.push(to_corrected);
         Some(Correction {
             frame: cur.frame,
             sim3: correction,
