@@ -8,7 +8,7 @@
 //! closer from them and continues after the last line. Local mapping (triangulation and
 //! bundle adjustment over the covisible keyframes) still runs in the tracking process.
 
-use crate::common::{StageArgs, StageContext};
+use crate::common::{send_value, StageArgs, StageContext};
 use crate::frame_log::{read_lines, record, Recorder};
 use crate::inbox::Inbox;
 use crate::loop_closing::{LoopClosing, PosedFrame};
@@ -80,23 +80,6 @@ pub fn write_trajectories(out: &Path, frames: &[(f64, Option<Pose>)]) -> Result<
     Ok(unposed)
 }
 
-type CorrectionPublisher = supermvo_messages::iceoryx2::port::publisher::Publisher<
-    supermvo_messages::Ipc,
-    CorrectionMsg,
-    FrameHeader,
->;
-
-fn send_verdict(p: &CorrectionPublisher, h: FrameHeader, v: CorrectionMsg) -> Result<()> {
-    let s = p
-        .loan_uninit()
-        .map_err(|e| MessageError::ipc("loaning a correction", e))?;
-    let mut s = s.write_payload(v);
-    *s.user_header_mut() = h;
-    s.send()
-        .map_err(|e| MessageError::ipc("sending a correction", e))?;
-    Ok(())
-}
-
 /// The end of the run: the loop-corrected poses into `frames.csv` and `loops.json` (when
 /// loops were closed), then the trajectory files.
 fn finish(out: &Path, rec: &mut Recorder, loops: Option<&LoopClosing>) -> Result<()> {
@@ -164,7 +147,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
             .map_err(|e| MessageError::ipc("backend state", e))?;
         // a tracker may be waiting for the verdict this back end's predecessor owed it
         if let Some((h, v)) = loops.as_ref().and_then(LoopClosing::last_verdict) {
-            send_verdict(&verdicts, h, v)?;
+            send_value(&verdicts, h, v, "a correction")?;
         }
     }
     ctx.started();
@@ -241,7 +224,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
                     backfilled: &backfilled,
                 };
                 if let Some(v) = l.add(frame, features.as_ref()) {
-                    send_verdict(&verdicts, h.forward(Status::Ok), v)?;
+                    send_value(&verdicts, h.forward(Status::Ok), v, "a correction")?;
                 }
             }
             changed = true;

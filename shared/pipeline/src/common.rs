@@ -239,6 +239,48 @@ where
     Ok(())
 }
 
+/// Sends the fixed-size `value` with header `h`; `what` names it in errors.
+pub fn send_value<P>(
+    p: &Publisher<Ipc, P, FrameHeader>,
+    h: FrameHeader,
+    value: P,
+    what: &str,
+) -> Result<()>
+where
+    P: std::fmt::Debug + ZeroCopySend + 'static,
+{
+    let s = p
+        .loan_uninit()
+        .map_err(|e| MessageError::ipc(format!("loaning {what}"), e))?;
+    let mut s = s.write_payload(value);
+    *s.user_header_mut() = h;
+    s.send()
+        .map_err(|e| MessageError::ipc(format!("sending {what}"), e))?;
+    Ok(())
+}
+
+/// Sends features `f` ([`supermvo_messages::FeatureLayout`]) with header `h`, whose `count`
+/// and `dim` it sets; returns the header sent.
+pub fn send_features(
+    p: &Publisher<Ipc, [f32], FrameHeader>,
+    mut h: FrameHeader,
+    f: &supermvo_inference::Features,
+) -> Result<FrameHeader> {
+    let layout = supermvo_messages::FeatureLayout {
+        n: f.len(),
+        dim: f.dim,
+    };
+    let mut s = p
+        .loan_slice(layout.len())
+        .map_err(|e| MessageError::ipc("loaning a features sample", e))?;
+    supermvo_messages::FeatureLayout::write(f, s.payload_mut());
+    (h.count, h.dim) = (f.len() as u32, f.dim as u32);
+    *s.user_header_mut() = h;
+    s.send()
+        .map_err(|e| MessageError::ipc("sending features", e))?;
+    Ok(h)
+}
+
 /// CPU time (user + system, every thread) this process has used, ns, from its own
 /// accounting (`getrusage`); 0 where that is unavailable.
 pub fn process_cpu_ns() -> u64 {

@@ -1,7 +1,7 @@
 //! Features: XFeat keypoints and descriptors of every frame (worker `k` of `N` takes the
 //! frames with `seq % N == k`), written in place into the `features` service.
 
-use crate::common::{send_slice, stamp, StageArgs, StageContext};
+use crate::common::{send_features, send_slice, stamp, StageArgs, StageContext};
 use crate::inbox::Inbox;
 use anyhow::Result;
 use supermvo_config::{Frontend, NetworkPlacement, PipelineConfig, Undistort};
@@ -14,7 +14,7 @@ use supermvo_inference::xfeat::{XFeat, XFeatConfig};
 use supermvo_inference::{Extractor, Features, InferenceError};
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
 use supermvo_messages::iceoryx2::prelude::*;
-use supermvo_messages::{now_ns, FeatureLayout, MessageError, StageKind, Status, Topic};
+use supermvo_messages::{now_ns, MessageError, StageKind, Status, Topic};
 
 /// The extractor the daemon and `supermvo run --mode inprocess` both use.
 pub fn extractor(
@@ -181,21 +181,9 @@ pub fn run(args: &StageArgs) -> Result<()> {
                             cfg.features_extra_latency_ms,
                         ));
                     }
-                    let layout = FeatureLayout {
-                        n: f.len(),
-                        dim: f.dim,
-                    };
-                    let mut s = publisher
-                        .loan_slice(layout.len())
-                        .map_err(|e| MessageError::ipc("loaning a features sample", e))?;
-                    FeatureLayout::write(&f, s.payload_mut());
                     let mut h = h_in.forward(Status::Ok);
-                    h.count = f.len() as u32;
-                    h.dim = f.dim as u32;
                     stamp(&mut h, StageKind::Features);
-                    *s.user_header_mut() = h;
-                    s.send()
-                        .map_err(|e| MessageError::ipc("sending features", e))?;
+                    let h = send_features(&publisher, h, &f)?;
                     ctx.frame_done(&h, t_in, b.len());
                     continue;
                 }

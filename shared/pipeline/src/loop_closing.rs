@@ -45,7 +45,7 @@ pub struct LoopClosing {
     /// waiting for it).
     last_verdict: Option<(u64, CorrectionMsg)>,
     /// Keyframes rebuilt from the log when this back end started.
-    pub restored_keyframes: usize,
+    restored_keyframes: usize,
 }
 
 impl std::fmt::Debug for LoopClosing {
@@ -194,11 +194,6 @@ impl LoopClosing {
             .into_iter()
             .map(|(seq, p)| (seq as u64, p.to_row_major_3x4()))
             .collect()
-    }
-
-    /// Why loop closure is off for this run, if it is.
-    pub fn disabled_reason(&self) -> Option<&str> {
-        self.closer.disabled_reason()
     }
 }
 

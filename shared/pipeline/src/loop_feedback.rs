@@ -8,7 +8,7 @@
 //! and applies a correction when it arrives (each pose says how many it had applied, see
 //! `PoseMsg::corrections`, and the back end accounts for the lag).
 
-use crate::common::StageContext;
+use crate::common::{send_features, StageContext};
 use anyhow::Result;
 use std::time::{Duration, Instant};
 use supermvo_config::{IngestMode, PipelineConfig};
@@ -16,7 +16,7 @@ use supermvo_messages::iceoryx2::port::publisher::Publisher;
 use supermvo_messages::iceoryx2::port::subscriber::Subscriber;
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
 use supermvo_messages::iceoryx2::prelude::*;
-use supermvo_messages::{CorrectionMsg, FeatureLayout, FrameHeader, Ipc, MessageError, Topic};
+use supermvo_messages::{CorrectionMsg, FrameHeader, Ipc, MessageError, Topic};
 use supermvo_optim::lie::Sim3;
 use supermvo_vo::tracker::{FrameOutput, Tracker};
 
@@ -81,21 +81,9 @@ impl LoopFeedback {
         if out.t_world_cam.is_none() {
             return Ok(());
         }
-        let layout = FeatureLayout {
-            n: f.len(),
-            dim: f.dim,
-        };
-        let mut s = self
-            .keyframes
-            .loan_slice(layout.len())
-            .map_err(|e| MessageError::ipc("loaning a keyframe sample", e))?;
-        FeatureLayout::write(f, s.payload_mut());
         let mut kh = *h;
-        (kh.count, kh.dim) = (f.len() as u32, f.dim as u32);
         (kh.width, kh.height) = (f.image_size.0 as u32, f.image_size.1 as u32);
-        *s.user_header_mut() = kh;
-        s.send()
-            .map_err(|e| MessageError::ipc("sending a keyframe", e))?;
+        send_features(&self.keyframes, kh, f)?;
         if self.wait {
             self.awaiting = Some((h.seq, Instant::now()));
         }

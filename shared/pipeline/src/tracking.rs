@@ -5,7 +5,7 @@
 //!
 //! A restarted tracker continues from the back end's last recorded pose and map scale.
 
-use crate::common::{receive_features, stamp, StageArgs, StageContext};
+use crate::common::{receive_features, send_value, stamp, StageArgs, StageContext};
 use crate::inbox::Inbox;
 use crate::loop_feedback::LoopFeedback;
 use anyhow::Result;
@@ -327,14 +327,7 @@ type RequestPublisher = supermvo_messages::iceoryx2::port::publisher::Publisher<
 
 /// Asks the matching stage for the matches of the frame of `h` to keyframe `reference`.
 fn request(p: &RequestPublisher, h: FrameHeader, reference: i64) -> Result<()> {
-    let s = p
-        .loan_uninit()
-        .map_err(|e| MessageError::ipc("loaning a match request", e))?;
-    let mut s = s.write_payload(MatchRequest { reference });
-    *s.user_header_mut() = h;
-    s.send()
-        .map_err(|e| MessageError::ipc("sending a match request", e))?;
-    Ok(())
+    send_value(p, h, MatchRequest { reference }, "a match request")
 }
 
 type PosePublisher = supermvo_messages::iceoryx2::port::publisher::Publisher<
@@ -345,12 +338,6 @@ type PosePublisher = supermvo_messages::iceoryx2::port::publisher::Publisher<
 
 fn publish(p: &PosePublisher, mut h: FrameHeader, msg: PoseMsg) -> Result<FrameHeader> {
     stamp(&mut h, StageKind::Tracking);
-    let s = p
-        .loan_uninit()
-        .map_err(|e| MessageError::ipc("loaning a pose sample", e))?;
-    let mut s = s.write_payload(msg);
-    *s.user_header_mut() = h;
-    s.send()
-        .map_err(|e| MessageError::ipc("sending a pose", e))?;
+    send_value(p, h, msg, "a pose")?;
     Ok(h)
 }
