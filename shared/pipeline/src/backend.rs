@@ -168,7 +168,8 @@ pub fn run(args: &StageArgs) -> Result<()> {
                 keyframe_features.insert(h.seq, FeatureLayout::read(&h, s.payload())?);
             }
         }
-        // a restarted tracker's subscriber gets the verdicts in the history
+        // a restarted tracker's subscribers get the state and the verdicts in the history
+        let _ = state.update_connections();
         let _ = verdicts.update_connections();
         let mut changed = false;
         loop {

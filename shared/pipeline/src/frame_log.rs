@@ -116,6 +116,12 @@ pub fn is_late_pose(r: &Record) -> bool {
     r.status == BACKFILLED || r.status == LOOP_CORRECTED
 }
 
+/// Whether `out/frames.csv` holds at least one frame: a stage starting then
+/// joins a run in progress (the supervisor removes the file when a run starts).
+pub fn has_records(out: &Path) -> bool {
+    std::fs::metadata(out.join("frames.csv")).is_ok_and(|m| m.len() > CSV_HEADER.len() as u64 + 1)
+}
+
 /// Every line of `frames.csv` in the order written, late poses included, skipping a torn
 /// last line; empty when the file does not exist.
 pub fn read_lines(path: &Path) -> Result<Vec<Record>> {

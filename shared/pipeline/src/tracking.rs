@@ -14,10 +14,11 @@ use supermvo_config::PipelineConfig;
 use supermvo_dataset::Sequence;
 use supermvo_geometry::Pose;
 use supermvo_inference::{Features, FrameView, Matches};
+use supermvo_messages::iceoryx2::port::subscriber::Subscriber;
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
 use supermvo_messages::iceoryx2::prelude::*;
 use supermvo_messages::{
-    now_ns, BackendState, BackfilledPose, FrameHeader, MatchEntry, MatchRequest, MessageError,
+    now_ns, BackendState, BackfilledPose, FrameHeader, Ipc, MatchEntry, MatchRequest, MessageError,
     PoseMsg, StageKind, Status, Topic, ViewHeader, MAX_BACKFILLED,
 };
 use supermvo_vo::tracker::{FrameMeta, FrameOutput, Tracker, TrackerConfig, TrackingState};
@@ -95,12 +96,54 @@ pub fn pose_msg(o: &FrameOutput, corrections: u32) -> PoseMsg {
     }
 }
 
+/// Continues after what the back end has recorded: the next seq, the loop corrections
+/// already applied, and the tracker placed at the last recorded pose. When the back end
+/// has recorded frames (this tracker replaces one that died), waits up to the gap timeout
+/// for its state, which reaches a new subscriber only once the back end updates its
+/// connections.
+fn restore(
+    backend: &Subscriber<Ipc, BackendState, ()>,
+    tracker: &mut Tracker,
+    out: &std::path::Path,
+    cfg: &PipelineConfig,
+) -> Result<(u64, u32)> {
+    let joining = crate::frame_log::has_records(out);
+    let deadline = std::time::Instant::now() + Duration::from_millis(cfg.gap_timeout_ms);
+    let mut latest = None;
+    loop {
+        while let Some(s) = backend
+            .receive()
+            .map_err(|e| MessageError::ipc("backend", e))?
+        {
+            latest = Some(*s.payload());
+        }
+        let waiting = joining && latest.is_none_or(|b| b.recorded == 0);
+        if !waiting || std::time::Instant::now() >= deadline {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let Some(b) = latest.filter(|b| b.recorded > 0) else {
+        if joining {
+            tracing::warn!("the back end's state did not arrive; starting at seq 0");
+        }
+        return Ok((0, 0));
+    };
+    if b.has_pose == 1 {
+        let scale = (b.scale > 0.0).then_some(b.scale);
+        tracker.restore(&Pose::from_row_major_3x4(&b.t_world_cam), scale);
+    }
+    tracing::info!("restored: continuing at seq {}", b.seq + 1);
+    Ok((b.seq + 1, b.corrections))
+}
+
 /// Runs the tracking stage until SIGTERM.
 pub fn run(args: &StageArgs) -> Result<()> {
     let cfg = args.load_config()?.pipeline;
     let seq = Sequence::open_with_camera(&args.seq, cfg.camera.as_deref())?;
     let mut tracker = Tracker::new(seq.calib, tracker_config(&cfg));
     let mut ctx = StageContext::new(StageKind::Tracking, args.worker, &cfg)?;
+    let gap = Duration::from_millis(cfg.gap_timeout_ms);
     let features = ctx.slice_subscriber::<f32>(Topic::Features)?;
     let matches = ctx.slice_subscriber::<MatchEntry>(Topic::Matches)?;
     let backend = ctx.plain_subscriber::<BackendState>(Topic::Backend)?;
@@ -120,29 +163,10 @@ pub fn run(args: &StageArgs) -> Result<()> {
         .create()
         .map_err(|e| MessageError::ipc("match requests publisher", e))?;
 
-    // restore: continue after what the back end has recorded
-    let (mut start, mut applied) = (0, 0);
-    while let Some(s) = backend
-        .receive()
-        .map_err(|e| MessageError::ipc("backend", e))?
-    {
-        let b = *s.payload();
-        if b.recorded > 0 {
-            start = b.seq + 1;
-            applied = b.corrections;
-            if b.has_pose == 1 {
-                let scale = (b.scale > 0.0).then_some(b.scale);
-                tracker.restore(&Pose::from_row_major_3x4(&b.t_world_cam), scale);
-            }
-        }
-    }
-    if start > 0 {
-        tracing::info!("restored: continuing at seq {start}");
-    }
+    let (start, applied) = restore(&backend, &mut tracker, &args.out, &cfg)?;
     let mut loops = LoopFeedback::open(&ctx, &cfg, applied)?;
     let mut feats: Inbox<Option<Features>> = Inbox::new(start, 1);
     let mut pairs: Inbox<Vec<MatchEntry>> = Inbox::new(start, 1);
-    let gap = Duration::from_millis(cfg.gap_timeout_ms);
     // the last frame tried without matches (and, when declined, asked for)
     let mut requested = None;
     ctx.started();
