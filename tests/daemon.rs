@@ -214,6 +214,16 @@ fn multiprocess_lossless_equals_inprocess_bit_for_bit_on_kitti_03() {
         assert_eq!(rec.keyframe, out.keyframe, "frame {i}");
     }
     assert_eq!(records[n].status, "end");
+    // every local BA was solved in the back-end process: the tracker solves one itself only
+    // when no back end answers
+    let solved = std::fs::read_to_string(tmp.path().join("local_ba.csv"))
+        .unwrap()
+        .lines()
+        .count()
+        - 1;
+    assert!(solved >= 50, "{solved} local BAs solved in the back end");
+    let log = std::fs::read_to_string(tmp.path().join("logs/tracking-0.log")).unwrap();
+    assert!(!log.contains("solved here"), "{log}");
     assert_eq!(metrics.frames.get("ok"), Some(&n));
     assert!(metrics.restarts.is_empty());
     assert!(metrics.end_to_end_ms.count == n);

@@ -575,6 +575,10 @@ pub enum Topic {
     Keyframes,
     /// `CorrectionMsg`, back end → tracking: the loop-closing verdict on each keyframe.
     Corrections,
+    /// `[f64]` a local bundle adjustment to solve, tracking → back end.
+    BaProblems,
+    /// `[f64]` its solution, back end → tracking.
+    BaSolutions,
     /// `BackendState`, back end → tracking (restore), monitors.
     Backend,
     /// `Progress`, every stage → supervisor and monitors.
@@ -591,7 +595,7 @@ pub enum Topic {
 
 impl Topic {
     /// Every topic.
-    pub const ALL: [Topic; 12] = [
+    pub const ALL: [Topic; 14] = [
         Topic::Frames,
         Topic::Features,
         Topic::Matches,
@@ -599,6 +603,8 @@ impl Topic {
         Topic::MatchRequests,
         Topic::Keyframes,
         Topic::Corrections,
+        Topic::BaProblems,
+        Topic::BaSolutions,
         Topic::Backend,
         Topic::Progress,
         Topic::Control,
@@ -616,6 +622,8 @@ impl Topic {
             Topic::MatchRequests => "match_requests",
             Topic::Keyframes => "keyframes",
             Topic::Corrections => "corrections",
+            Topic::BaProblems => "ba_problems",
+            Topic::BaSolutions => "ba_solutions",
             Topic::Backend => "backend",
             Topic::Progress => "progress",
             Topic::Control => "control",
@@ -701,6 +709,13 @@ impl Services {
                 history: HISTORY,
                 buffer: 4 * HISTORY,
                 safe_overflow: false,
+            },
+            // requests answered at once: no history (a problem no one solved in time is
+            // solved by the tracker itself), never block the sender
+            Topic::BaProblems | Topic::BaSolutions => Qos {
+                history: 0,
+                buffer: 4,
+                safe_overflow: true,
             },
             // last state only
             Topic::Backend | Topic::Control => Qos {

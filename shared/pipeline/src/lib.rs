@@ -21,6 +21,7 @@ pub mod loop_closing;
 pub mod loop_feedback;
 pub mod matching;
 pub mod monitor;
+pub mod remote_ba;
 pub mod supervisor;
 pub mod tracking;
 pub mod viewer;

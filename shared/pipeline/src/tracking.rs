@@ -8,9 +8,10 @@
 use crate::common::{receive_features, send_value, stamp, StageArgs, StageContext};
 use crate::inbox::Inbox;
 use crate::loop_feedback::LoopFeedback;
+use crate::remote_ba::RemoteBa;
 use anyhow::Result;
 use std::time::Duration;
-use supermvo_config::PipelineConfig;
+use supermvo_config::{IngestMode, PipelineConfig};
 use supermvo_dataset::Sequence;
 use supermvo_geometry::Pose;
 use supermvo_inference::{Features, FrameView, Matches};
@@ -144,6 +145,11 @@ pub fn run(args: &StageArgs) -> Result<()> {
     let mut tracker = Tracker::new(seq.calib, tracker_config(&cfg));
     let mut ctx = StageContext::new(StageKind::Tracking, args.worker, &cfg)?;
     let gap = Duration::from_millis(cfg.gap_timeout_ms);
+    // lossless: the local BA runs in the back end, the tracker waiting for it as it would in
+    // one process; in real time it stays here until it can run beside tracking
+    if cfg.mode == IngestMode::Lossless {
+        tracker.set_ba_solver(Box::new(RemoteBa::open(&ctx, gap)?));
+    }
     let features = ctx.slice_subscriber::<f32>(Topic::Features)?;
     let matches = ctx.slice_subscriber::<MatchEntry>(Topic::Matches)?;
     let backend = ctx.plain_subscriber::<BackendState>(Topic::Backend)?;

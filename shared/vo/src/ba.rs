@@ -35,6 +35,15 @@ pub struct LocalBa {
     pub huber: f64,
 }
 
+/// Where local bundle adjustments are solved when not in the tracker's own thread: the
+/// daemon's back-end process (`supermvo_pipeline::remote_ba`). A solver must give exactly
+/// what [`LocalBa::solve`] gives here, so that a run does not depend on where it solved.
+pub trait BaSolver {
+    /// Solves `ba` in place with up to `iterations` iterations; returns (initial cost,
+    /// final cost) as [`LocalBa::solve`] does.
+    fn solve(&mut self, ba: &mut LocalBa, iterations: usize) -> (f64, f64);
+}
+
 type Poses = Vec<Pose>;
 
 /// The normal equations of a window: camera blocks (dense, free keyframes only), point

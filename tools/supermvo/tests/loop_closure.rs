@@ -91,6 +91,9 @@ fn the_daemon_closes_the_same_loops_across_a_killed_back_end(
         .find(|p| p["stage"] == "backend")
         .and_then(|p| p["pid"].as_i64())
         .unwrap();
+    let local_bas =
+        || std::fs::read_to_string(out.join("local_ba.csv")).map_or(0, |t| t.lines().count() - 1);
+    let bas_before = local_bas();
     kill(Pid::from_raw(backend as i32), Signal::SIGKILL).unwrap();
     let killed_after = recorded();
     eprintln!("killed the back end (pid {backend}) after {killed_after} frames");
@@ -126,6 +129,16 @@ fn the_daemon_closes_the_same_loops_across_a_killed_back_end(
     );
     let trajectory =
         |dir: &std::path::Path| std::fs::read(dir.join("trajectory.kitti.txt")).unwrap();
+    // the local BAs were solved in the back end, by the killed one and by its successor
+    assert!(
+        bas_before > 20,
+        "{bas_before} local BAs in the back end before the kill"
+    );
+    assert!(
+        local_bas() > bas_before + 10,
+        "{} local BAs in the back end, {bas_before} before the kill",
+        local_bas()
+    );
     assert!(
         trajectory(&out) == trajectory(&tmp.join("with")),
         "the daemon's loop-corrected trajectory differs from the in-process run's"

@@ -22,7 +22,16 @@ pub struct BaStats {
     pub ms: f64,
 }
 
+/// Levenberg-Marquardt iterations of one local BA.
+const LOCAL_BA_ITERATIONS: usize = 10;
+
 impl Tracker {
+    /// Solves the local BA with `solver` instead of in this thread (the daemon hands it to
+    /// the back-end process); the results must not depend on where it ran.
+    pub fn set_ba_solver(&mut self, solver: Box<dyn crate::ba::BaSolver>) {
+        self.ba_solver = Some(solver);
+    }
+
     /// The keyframes a local bundle adjustment optimises, in id order (`None`: too few
     /// for one). With `local_ba_min_shared` 0, the last `local_ba_window` keyframes of the
     /// current map; otherwise the newest keyframe and those sharing at least that many
@@ -120,7 +129,10 @@ impl Tracker {
             observations,
             huber: 2.0 / self.focal(),
         };
-        let (c0, c1) = ba.solve(10);
+        let (c0, c1) = match self.ba_solver.as_mut() {
+            Some(solver) => solver.solve(&mut ba, LOCAL_BA_ITERATIONS),
+            None => ba.solve(LOCAL_BA_ITERATIONS),
+        };
         let stats = BaStats {
             keyframes: window.len(),
             points: point_ids.len(),

@@ -102,6 +102,8 @@ pub struct Tracker {
     /// Frames seen while initialising against the current reference, posed once the map
     /// exists.
     initialising: initialising_frames::InitialisingFrames,
+    /// Where the local BA is solved (`None`: here).
+    ba_solver: Option<Box<dyn crate::ba::BaSolver>>,
 }
 
 impl std::fmt::Debug for Tracker {
@@ -128,6 +130,7 @@ impl Tracker {
             scale: None,
             last_frame: None,
             initialising: Default::default(),
+            ba_solver: None,
         }
     }
 
