@@ -10,6 +10,7 @@
 use supermvo_dataset::Calibration;
 use supermvo_geometry::{Mat3, Vec3};
 use supermvo_inference::{Features, Matches};
+use supermvo_vo::ba::{BaSolver, LocalBa};
 use supermvo_vo::tracker::{FrameMeta, Tracker, TrackerConfig};
 
 /// xorshift64: deterministic across platforms.
@@ -246,6 +247,17 @@ fn run_counted(
     cfg: TrackerConfig,
     drive: Drive,
 ) -> Counted {
+    run_counted_with(seed, (noise_px, outliers), cfg, drive, |_| {})
+}
+
+/// [`run_counted`] with the tracker prepared by `setup` before the first frame.
+fn run_counted_with(
+    seed: u64,
+    (noise_px, outliers): (f64, f64),
+    cfg: TrackerConfig,
+    drive: Drive,
+    setup: impl FnOnce(&mut Tracker),
+) -> Counted {
     let mut matched = 0;
     let mut tracked = Vec::new();
     let mut backfilled = Vec::new();
@@ -254,6 +266,7 @@ fn run_counted(
     let mut miss_rng = Rng(777 + seed);
     let s = scene(&mut rng, drive);
     let mut tracker = Tracker::new(calib(), cfg);
+    setup(&mut tracker);
     let mut ids_of: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
     let mut out = Vec::new();
     for k in 0..drive.frames() {
@@ -378,6 +391,30 @@ fn frames_between_keyframes_are_tracked_without_the_matcher() {
             assert!(worst < 0.02, "scene {seed}: scale changed by {worst:.4}");
         }
     }
+}
+
+/// A local BA solved elsewhere (as the daemon's back end does) with the same solver gives
+/// the trajectory bit for bit, and every window goes through the solver.
+#[test]
+fn a_local_ba_solved_elsewhere_gives_the_same_trajectory() {
+    struct Counting(std::rc::Rc<std::cell::Cell<usize>>);
+    impl BaSolver for Counting {
+        fn solve(&mut self, ba: &mut LocalBa, iterations: usize) -> (f64, f64) {
+            self.0.set(self.0.get() + 1);
+            ba.solve(iterations)
+        }
+    }
+    let solved = std::rc::Rc::new(std::cell::Cell::new(0));
+    let counter = Counting(solved.clone());
+    let cfg = TrackerConfig::default();
+    let here = run_counted(0, 0.5, 0.1, cfg.clone(), Drive::default());
+    let there = run_counted_with(0, (0.5, 0.1), cfg, Drive::default(), |t| {
+        t.set_ba_solver(Box::new(counter))
+    });
+    println!("{} local BAs solved elsewhere", solved.get());
+    assert!(solved.get() >= 5, "{} local BAs", solved.get());
+    assert_eq!(here.0, there.0);
+    assert_eq!(here.3, there.3);
 }
 
 /// Frames dropped before the tracker (two of every three, as a real-time pipeline that
