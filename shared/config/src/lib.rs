@@ -230,6 +230,11 @@ pub struct PipelineConfig {
     /// Recognise revisited places and correct the trajectory (and the tracker's map) with a
     /// Sim(3) pose graph of keyframes.
     pub loop_closure: bool,
+    /// Solve the tracker's local bundle adjustments in the daemon's back-end process
+    /// (lossless: the tracker waits for each, the run stays bit-identical; real time: the
+    /// tracker goes on and applies the solution when it arrives). false keeps them in the
+    /// tracking process. In one process they always run in the tracker.
+    pub local_ba_in_backend: bool,
     /// LighterGlue point pruning (LightGlue's `width_confidence`): points the network rates
     /// unmatchable leave after each layer. In (0, 1), or -1 to run every point through every
     /// layer.
@@ -295,6 +300,7 @@ impl Default for PipelineConfig {
             loops: 1,
             features_extra_latency_ms: 0,
             loop_closure: true,
+            local_ba_in_backend: true,
             width_confidence: 0.95,
             depth_confidence: -1.0,
             subpixel_keypoints: false,

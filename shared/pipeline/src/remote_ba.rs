@@ -7,7 +7,9 @@
 //! stays bit-identical to `supermvo run --mode inprocess`. When no back end listens (it is
 //! restarting) or none answers within the gap timeout, the tracker solves the problem
 //! itself, with the same result, so a dead back end costs time, never a different
-//! trajectory.
+//! trajectory. In real time the tracker does not wait: [`LateSolutions`] applies each
+//! solution when it arrives, as ORB-SLAM's local mapping thread updates the map beside
+//! tracking.
 
 use crate::common::{send_slice, StageContext};
 use anyhow::{bail, Context, Result};
@@ -18,7 +20,8 @@ use supermvo_messages::iceoryx2::port::publisher::Publisher;
 use supermvo_messages::iceoryx2::port::subscriber::Subscriber;
 use supermvo_messages::iceoryx2::prelude::*;
 use supermvo_messages::{FrameHeader, Ipc, MessageError, Status, Topic};
-use supermvo_vo::ba::{BaSolver, LocalBa, Observation};
+use supermvo_vo::ba::{BaOutcome, BaSolver, LocalBa, Observation};
+use supermvo_vo::tracker::Tracker;
 
 /// Values before the poses in a problem: counts of poses, points and observations, the
 /// iterations and the Huber threshold.
@@ -96,22 +99,42 @@ pub fn encode_solution(ba: &LocalBa, (before, after): (f64, f64)) -> Vec<f64> {
     v
 }
 
-/// Writes the solution of [`encode_solution`] into `ba`; its costs. An error, leaving `ba`
-/// as it was, when the solution does not fit the problem.
-pub fn apply_solution(v: &[f64], ba: &mut LocalBa) -> Result<(f64, f64)> {
-    let (np, nx) = (ba.poses.len(), ba.points.len());
-    let fits =
-        v.len() == SOLUTION_HEAD + 12 * np + 3 * nx && v[0] as usize == np && v[1] as usize == nx;
-    if !fits {
+/// A solution of [`encode_solution`]: the poses, the points and the costs.
+pub type Solution = (Vec<Pose>, Vec<Vec3>, (f64, f64));
+
+/// Reads a solution of [`encode_solution`]; an error for a malformed one.
+pub fn decode_solution(v: &[f64]) -> Result<Solution> {
+    let Some(head) = v.get(..SOLUTION_HEAD) else {
+        bail!("a local BA solution of {} values has no header", v.len());
+    };
+    let (np, nx) = (head[0] as usize, head[1] as usize);
+    if v.len() != SOLUTION_HEAD + 12 * np + 3 * nx {
         bail!(
-            "a local BA solution of {} values does not fit {np} poses and {nx} points",
+            "a local BA solution of {} values does not hold {np} poses and {nx} points",
             v.len()
         );
     }
     let mut rest = &v[SOLUTION_HEAD..];
-    ba.poses = (0..np).map(|_| take_pose(&mut rest)).collect();
-    ba.points = (0..nx).map(|_| take_vec3(&mut rest)).collect();
-    Ok((v[2], v[3]))
+    let poses = (0..np).map(|_| take_pose(&mut rest)).collect();
+    let points = (0..nx).map(|_| take_vec3(&mut rest)).collect();
+    Ok((poses, points, (head[2], head[3])))
+}
+
+/// Writes the solution of [`encode_solution`] into `ba`; its costs. An error, leaving `ba`
+/// as it was, when the solution does not fit the problem.
+pub fn apply_solution(v: &[f64], ba: &mut LocalBa) -> Result<(f64, f64)> {
+    let (poses, points, costs) = decode_solution(v)?;
+    if poses.len() != ba.poses.len() || points.len() != ba.points.len() {
+        bail!(
+            "a local BA solution of {} poses and {} points does not fit {} poses and {} points",
+            poses.len(),
+            points.len(),
+            ba.poses.len(),
+            ba.points.len()
+        );
+    }
+    (ba.poses, ba.points) = (poses, points);
+    Ok(costs)
 }
 
 fn push_pose(v: &mut Vec<f64>, p: &Pose) {
@@ -153,11 +176,13 @@ fn subscriber(ctx: &StageContext, topic: Topic) -> Result<Subscriber<Ipc, [f64],
         .map_err(|e| MessageError::ipc(format!("{} subscriber", topic.name()), e))?)
 }
 
-/// Tracking's side: hands each local BA to the back end and waits for its solution.
+/// Tracking's side: hands each local BA to the back end and waits for its solution, or
+/// (real time) goes on while [`LateSolutions`] brings it.
 pub struct RemoteBa {
     service: Port,
     problems: Publisher<Ipc, [f64], FrameHeader>,
-    solutions: Subscriber<Ipc, [f64], FrameHeader>,
+    /// The solutions waited for; `None`: not waited for.
+    solutions: Option<Subscriber<Ipc, [f64], FrameHeader>>,
     next_id: u64,
     timeout: Duration,
 }
@@ -169,8 +194,23 @@ impl std::fmt::Debug for RemoteBa {
 }
 
 impl RemoteBa {
-    /// The ports of the tracking stage of `ctx`; waits for a solution up to `timeout`.
+    /// The ports of the tracking stage of `ctx`; waits for each solution up to `timeout`.
     pub fn open(ctx: &StageContext, timeout: Duration) -> Result<Self> {
+        let mut ba = Self::sender(ctx, timeout)?;
+        ba.solutions = Some(subscriber(ctx, Topic::BaSolutions)?);
+        Ok(ba)
+    }
+
+    /// The ports of the tracking stage of `ctx`, not waiting: the solutions come through
+    /// the [`LateSolutions`] returned with it.
+    pub fn open_deferred(ctx: &StageContext) -> Result<(Self, LateSolutions)> {
+        let late = LateSolutions {
+            solutions: subscriber(ctx, Topic::BaSolutions)?,
+        };
+        Ok((Self::sender(ctx, Duration::ZERO)?, late))
+    }
+
+    fn sender(ctx: &StageContext, timeout: Duration) -> Result<Self> {
         let service = ctx
             .services
             .slice_topic::<f64>(&ctx.node, Topic::BaProblems, false)?;
@@ -183,28 +223,44 @@ impl RemoteBa {
         Ok(Self {
             service,
             problems,
-            solutions: subscriber(ctx, Topic::BaSolutions)?,
+            solutions: None,
             next_id: 0,
             timeout,
         })
     }
 
-    /// Sends `ba` and waits for its solution: `None` when no back end listens, the send
-    /// fails or no solution comes in time.
-    fn solve_remotely(&mut self, ba: &mut LocalBa, iterations: usize) -> Option<(f64, f64)> {
-        if self.service.dynamic_config().number_of_subscribers() == 0 {
+    fn back_end_listens(&self) -> bool {
+        self.service.dynamic_config().number_of_subscribers() > 0
+    }
+
+    /// Sends `ba`: its id, or `None` when no back end listens or the send fails.
+    fn send(&mut self, ba: &LocalBa, iterations: usize) -> Option<u64> {
+        if !self.back_end_listens() {
             return None;
         }
         let id = self.next_id;
         self.next_id += 1;
         let h = FrameHeader::new(id, 0, 0.0, Status::Ok);
-        if let Err(e) = send_slice(&self.problems, h, &encode_problem(ba, iterations)) {
-            tracing::warn!("local BA {id} not sent ({e:#}); solved here");
-            return None;
+        match send_slice(&self.problems, h, &encode_problem(ba, iterations)) {
+            Ok(()) => Some(id),
+            Err(e) => {
+                tracing::warn!("local BA {id} not sent ({e:#}); solved here");
+                None
+            }
         }
+    }
+
+    /// Waits for the solution of `id` and writes it into `ba`: `None` when none comes in
+    /// time or the back end goes away.
+    fn wait_for(
+        &self,
+        solutions: &Subscriber<Ipc, [f64], FrameHeader>,
+        id: u64,
+        ba: &mut LocalBa,
+    ) -> Option<(f64, f64)> {
         let deadline = Instant::now() + self.timeout;
         while Instant::now() < deadline {
-            match self.solutions.receive() {
+            match solutions.receive() {
                 Ok(Some(s)) if s.user_header().seq == id => {
                     return match apply_solution(s.payload(), ba) {
                         Ok(costs) => Some(costs),
@@ -215,6 +271,10 @@ impl RemoteBa {
                     };
                 }
                 Ok(Some(_)) => {} // the answer to a problem already solved here
+                Ok(None) if !self.back_end_listens() => {
+                    tracing::warn!("local BA {id}: the back end went away; solved here");
+                    return None;
+                }
                 Ok(None) => std::thread::sleep(Duration::from_micros(100)),
                 Err(e) => {
                     tracing::warn!(
@@ -233,11 +293,47 @@ impl RemoteBa {
 }
 
 impl BaSolver for RemoteBa {
-    fn solve(&mut self, ba: &mut LocalBa, iterations: usize) -> (f64, f64) {
-        match self.solve_remotely(ba, iterations) {
-            Some(costs) => costs,
-            None => ba.solve(iterations),
+    fn solve(&mut self, ba: &mut LocalBa, iterations: usize) -> BaOutcome {
+        let solved = match (self.send(ba, iterations), &self.solutions) {
+            (Some(id), None) => return BaOutcome::Deferred(id),
+            (Some(id), Some(solutions)) => self.wait_for(solutions, id, ba),
+            (None, _) => None,
+        };
+        let (before, after) = solved.unwrap_or_else(|| ba.solve(iterations));
+        BaOutcome::Solved(before, after)
+    }
+}
+
+/// Real time: the solutions of the windows handed off, applied to the tracker as they come.
+pub struct LateSolutions {
+    solutions: Subscriber<Ipc, [f64], FrameHeader>,
+}
+
+impl std::fmt::Debug for LateSolutions {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("LateSolutions")
+    }
+}
+
+impl LateSolutions {
+    /// Applies every solution received (the tracker drops one a newer window replaced or a
+    /// loop correction outdated); how many were applied.
+    pub fn apply(&self, tracker: &mut Tracker) -> Result<usize> {
+        let mut applied = 0;
+        while let Some(s) = self
+            .solutions
+            .receive()
+            .map_err(|e| MessageError::ipc("local BA solutions", e))?
+        {
+            let id = s.user_header().seq;
+            match decode_solution(s.payload()) {
+                Ok((poses, points, _)) => {
+                    applied += tracker.apply_local_ba(id, &poses, &points) as usize;
+                }
+                Err(e) => tracing::warn!("local BA {id}: {e:#}; not applied"),
+            }
         }
+        Ok(applied)
     }
 }
 

@@ -145,11 +145,20 @@ pub fn run(args: &StageArgs) -> Result<()> {
     let mut tracker = Tracker::new(seq.calib, tracker_config(&cfg));
     let mut ctx = StageContext::new(StageKind::Tracking, args.worker, &cfg)?;
     let gap = Duration::from_millis(cfg.gap_timeout_ms);
-    // lossless: the local BA runs in the back end, the tracker waiting for it as it would in
-    // one process; in real time it stays here until it can run beside tracking
-    if cfg.mode == IngestMode::Lossless {
-        tracker.set_ba_solver(Box::new(RemoteBa::open(&ctx, gap)?));
-    }
+    // the local BA in the back end: lossless, the tracker waits for it as it would for its
+    // own solve; in real time it goes on and applies each solution when it arrives
+    let late_ba = match (cfg.local_ba_in_backend, cfg.mode) {
+        (false, _) => None,
+        (true, IngestMode::Lossless) => {
+            tracker.set_ba_solver(Box::new(RemoteBa::open(&ctx, gap)?));
+            None
+        }
+        (true, IngestMode::Realtime) => {
+            let (sender, late) = RemoteBa::open_deferred(&ctx)?;
+            tracker.set_ba_solver(Box::new(sender));
+            Some(late)
+        }
+    };
     let features = ctx.slice_subscriber::<f32>(Topic::Features)?;
     let matches = ctx.slice_subscriber::<MatchEntry>(Topic::Matches)?;
     let backend = ctx.plain_subscriber::<BackendState>(Topic::Backend)?;
@@ -188,6 +197,9 @@ pub fn run(args: &StageArgs) -> Result<()> {
         }
         if let Some(l) = loops.as_mut() {
             l.receive(&mut tracker)?;
+        }
+        if let Some(late) = late_ba.as_ref() {
+            late.apply(&mut tracker)?;
         }
         let _ = publisher.update_connections();
         let _ = requests.update_connections();

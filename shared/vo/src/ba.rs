@@ -36,12 +36,22 @@ pub struct LocalBa {
 }
 
 /// Where local bundle adjustments are solved when not in the tracker's own thread: the
-/// daemon's back-end process (`supermvo_pipeline::remote_ba`). A solver must give exactly
-/// what [`LocalBa::solve`] gives here, so that a run does not depend on where it solved.
+/// daemon's back-end process (`supermvo_pipeline::remote_ba`). A solver that solves at once
+/// must give exactly what [`LocalBa::solve`] gives here, so that a run does not depend on
+/// where it solved.
 pub trait BaSolver {
-    /// Solves `ba` in place with up to `iterations` iterations; returns (initial cost,
-    /// final cost) as [`LocalBa::solve`] does.
-    fn solve(&mut self, ba: &mut LocalBa, iterations: usize) -> (f64, f64);
+    /// Solves `ba` in place with up to `iterations` iterations, or hands it off.
+    fn solve(&mut self, ba: &mut LocalBa, iterations: usize) -> BaOutcome;
+}
+
+/// What became of a local BA given to a [`BaSolver`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum BaOutcome {
+    /// Solved in place: (initial cost, final cost), as [`LocalBa::solve`] returns.
+    Solved(f64, f64),
+    /// Handed off under this id: the solution comes later, through
+    /// `Tracker::apply_local_ba`, while tracking continues.
+    Deferred(u64),
 }
 
 type Poses = Vec<Pose>;

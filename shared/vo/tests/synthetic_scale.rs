@@ -7,10 +7,12 @@
 //! as much (a heavy tail). Measures the trajectory's scale (estimated / true distance over
 //! 10-frame steps) along the run.
 
+use std::cell::{Cell, RefCell};
+use std::rc::Rc;
 use supermvo_dataset::Calibration;
 use supermvo_geometry::{Mat3, Vec3};
 use supermvo_inference::{Features, Matches};
-use supermvo_vo::ba::{BaSolver, LocalBa};
+use supermvo_vo::ba::{BaOutcome, BaSolver, LocalBa};
 use supermvo_vo::tracker::{FrameMeta, Tracker, TrackerConfig};
 
 /// xorshift64: deterministic across platforms.
@@ -247,16 +249,16 @@ fn run_counted(
     cfg: TrackerConfig,
     drive: Drive,
 ) -> Counted {
-    run_counted_with(seed, (noise_px, outliers), cfg, drive, |_| {})
+    run_counted_with(seed, (noise_px, outliers), cfg, drive, |_, _| {})
 }
 
-/// [`run_counted`] with the tracker prepared by `setup` before the first frame.
+/// [`run_counted`] with `before(k, tracker)` called before each frame `k`.
 fn run_counted_with(
     seed: u64,
     (noise_px, outliers): (f64, f64),
     cfg: TrackerConfig,
     drive: Drive,
-    setup: impl FnOnce(&mut Tracker),
+    mut before: impl FnMut(usize, &mut Tracker),
 ) -> Counted {
     let mut matched = 0;
     let mut tracked = Vec::new();
@@ -266,10 +268,10 @@ fn run_counted_with(
     let mut miss_rng = Rng(777 + seed);
     let s = scene(&mut rng, drive);
     let mut tracker = Tracker::new(calib(), cfg);
-    setup(&mut tracker);
     let mut ids_of: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
     let mut out = Vec::new();
     for k in 0..drive.frames() {
+        before(k, &mut tracker);
         let (mut f, mut ids) = observe(&s, k, noise_px, drive, &mut rng);
         if k >= 10 && drive.dropped.0 > 0 && k % drive.dropped.0 < drive.dropped.1 {
             continue;
@@ -397,24 +399,80 @@ fn frames_between_keyframes_are_tracked_without_the_matcher() {
 /// the trajectory bit for bit, and every window goes through the solver.
 #[test]
 fn a_local_ba_solved_elsewhere_gives_the_same_trajectory() {
-    struct Counting(std::rc::Rc<std::cell::Cell<usize>>);
+    struct Counting(Rc<Cell<usize>>);
     impl BaSolver for Counting {
-        fn solve(&mut self, ba: &mut LocalBa, iterations: usize) -> (f64, f64) {
+        fn solve(&mut self, ba: &mut LocalBa, iterations: usize) -> BaOutcome {
             self.0.set(self.0.get() + 1);
-            ba.solve(iterations)
+            let (c0, c1) = ba.solve(iterations);
+            BaOutcome::Solved(c0, c1)
         }
     }
-    let solved = std::rc::Rc::new(std::cell::Cell::new(0));
-    let counter = Counting(solved.clone());
+    let solved = Rc::new(Cell::new(0));
+    let mut counter = Some(Counting(solved.clone()));
     let cfg = TrackerConfig::default();
     let here = run_counted(0, 0.5, 0.1, cfg.clone(), Drive::default());
-    let there = run_counted_with(0, (0.5, 0.1), cfg, Drive::default(), |t| {
-        t.set_ba_solver(Box::new(counter))
+    let there = run_counted_with(0, (0.5, 0.1), cfg, Drive::default(), |_, t| {
+        if let Some(c) = counter.take() {
+            t.set_ba_solver(Box::new(c));
+        }
     });
     println!("{} local BAs solved elsewhere", solved.get());
     assert!(solved.get() >= 5, "{} local BAs", solved.get());
     assert_eq!(here.0, there.0);
     assert_eq!(here.3, there.3);
+}
+
+/// Local BAs solved while tracking goes on (the daemon's real-time mode: each window's
+/// solution is applied a few frames after its keyframe, unless a newer window replaced it)
+/// still hold the scale as the local BA in place does, where the runs without it drift (the
+/// test below).
+#[test]
+fn a_local_ba_applied_frames_later_still_holds_the_scale() {
+    /// Frames between a keyframe and its window's solution.
+    const LAG: usize = 2;
+    /// `(frame asked, id, window)` of the windows handed off, and the frame now.
+    type Queue = Rc<RefCell<Vec<(usize, u64, LocalBa)>>>;
+    struct Deferring(Queue, Rc<Cell<usize>>, u64);
+    impl BaSolver for Deferring {
+        fn solve(&mut self, ba: &mut LocalBa, _iterations: usize) -> BaOutcome {
+            self.2 += 1;
+            self.0.borrow_mut().push((self.1.get(), self.2, ba.clone()));
+            BaOutcome::Deferred(self.2)
+        }
+    }
+    for seed in 0..3 {
+        let cfg = TrackerConfig::default();
+        let (in_place, ..) = run_counted(seed, 0.5, 0.1, cfg.clone(), Drive::default());
+        let posed_in_place = in_place.iter().filter(|t| t.0.is_some()).count();
+        let (queue, now): (Queue, Rc<Cell<usize>>) = Default::default();
+        let mut solver = Some(Deferring(queue.clone(), now.clone(), 0));
+        let (mut sent, mut applied) = (0, 0);
+        let (traj, ..) = run_counted_with(seed, (0.5, 0.1), cfg, Drive::default(), |k, t| {
+            if let Some(s) = solver.take() {
+                t.set_ba_solver(Box::new(s));
+            }
+            now.set(k);
+            let (due, waiting) = std::mem::take(&mut *queue.borrow_mut())
+                .into_iter()
+                .partition(|(asked, ..)| k >= asked + LAG);
+            *queue.borrow_mut() = waiting;
+            for (_, id, mut ba) in due {
+                sent += 1;
+                ba.solve(10);
+                applied += t.apply_local_ba(id, &ba.poses, &ba.points) as usize;
+            }
+        });
+        let posed = traj.iter().filter(|t| t.0.is_some()).count();
+        let worst = worst_change(&scale_steps(&traj));
+        let worst_in_place = worst_change(&scale_steps(&in_place));
+        println!("scene {seed}: {applied} of {sent} windows applied {LAG} frames later, {posed} of {} posed ({posed_in_place} in place), scale within {worst:.4} ({worst_in_place:.4} in place)", traj.len());
+        assert!(
+            applied * 2 >= sent && applied >= 5,
+            "scene {seed}: {applied} of {sent}"
+        );
+        assert!(posed >= posed_in_place, "scene {seed}: {posed} posed");
+        assert!(worst < 0.02, "scene {seed}: scale changed by {worst:.4}");
+    }
 }
 
 /// Frames dropped before the tracker (two of every three, as a real-time pipeline that

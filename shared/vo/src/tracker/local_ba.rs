@@ -2,7 +2,8 @@
 //! landmarks, older keyframes that see them held fixed as anchors (they carry the scale).
 
 use super::Tracker;
-use supermvo_geometry::Vec3;
+use crate::ba::BaOutcome;
+use supermvo_geometry::{Pose, Vec3};
 
 /// One local bundle adjustment: its size, cost (sum of squared normalised reprojection
 /// errors under the robust loss) and wall time including building the problem.
@@ -24,6 +25,21 @@ pub struct BaStats {
 
 /// Levenberg-Marquardt iterations of one local BA.
 const LOCAL_BA_ITERATIONS: usize = 10;
+
+/// A solved window: the keyframes' `T_cam_world` and the points.
+type SolvedWindow<'a> = (&'a [Pose], &'a [Vec3]);
+
+/// A window handed off to a solver elsewhere, until its solution arrives.
+#[derive(Debug, Clone)]
+pub(crate) struct PendingBa {
+    id: u64,
+    /// The keyframes optimised (map ids, in the problem's order).
+    window: Vec<usize>,
+    /// The landmarks, in the problem's order.
+    point_ids: Vec<usize>,
+    /// The map segment it was built in.
+    segment_start: usize,
+}
 
 impl Tracker {
     /// Solves the local BA with `solver` instead of in this thread (the daemon hands it to
@@ -129,9 +145,24 @@ impl Tracker {
             observations,
             huber: 2.0 / self.focal(),
         };
-        let (c0, c1) = match self.ba_solver.as_mut() {
+        let outcome = match self.ba_solver.as_mut() {
             Some(solver) => solver.solve(&mut ba, LOCAL_BA_ITERATIONS),
-            None => ba.solve(LOCAL_BA_ITERATIONS),
+            None => {
+                let (c0, c1) = ba.solve(LOCAL_BA_ITERATIONS);
+                BaOutcome::Solved(c0, c1)
+            }
+        };
+        let (c0, c1) = match outcome {
+            BaOutcome::Solved(c0, c1) => (c0, c1),
+            BaOutcome::Deferred(id) => {
+                self.pending_ba = Some(PendingBa {
+                    id,
+                    window,
+                    point_ids,
+                    segment_start: self.map.segment_start,
+                });
+                return;
+            }
         };
         let stats = BaStats {
             keyframes: window.len(),
@@ -150,22 +181,62 @@ impl Tracker {
             cost_after = c1,
             "local BA"
         );
-        for (i, &k) in window.iter().enumerate() {
-            self.map.keyframe_poses[k] = ba.poses[i];
-        }
-        for (i, &id) in point_ids.iter().enumerate() {
-            if let Some(lm) = self.map.landmarks.get_mut(&id) {
-                lm.p = ba.points[i];
-            }
-        }
-        if let Some(kf) = self.keyframe.as_mut() {
-            kf.t_cam_world = self.map.keyframe_poses[kf.id];
-            self.last_t_cam_world = kf.t_cam_world;
-        }
+        self.write_back(&window, &point_ids, (&ba.poses, &ba.points), false);
         self.last_ba = Some(BaStats {
             ms: started.elapsed().as_secs_f64() * 1e3,
             ..stats
         });
+    }
+
+    /// Writes a solved window's keyframe poses and points into the map. The reference
+    /// keyframe takes its refined pose and the last frame's pose follows it: solved at once,
+    /// the last frame is the keyframe; solved later (`later`), a later frame keeps its pose
+    /// relative to the keyframe.
+    fn write_back(
+        &mut self,
+        window: &[usize],
+        point_ids: &[usize],
+        (poses, points): SolvedWindow,
+        later: bool,
+    ) {
+        for (i, &k) in window.iter().enumerate() {
+            self.map.keyframe_poses[k] = poses[i];
+        }
+        for (i, &id) in point_ids.iter().enumerate() {
+            if let Some(lm) = self.map.landmarks.get_mut(&id) {
+                lm.p = points[i];
+            }
+        }
+        if let Some(kf) = self.keyframe.as_mut() {
+            let before = kf.t_cam_world;
+            kf.t_cam_world = self.map.keyframe_poses[kf.id];
+            self.last_t_cam_world = match later {
+                false => kf.t_cam_world,
+                true => self
+                    .last_t_cam_world
+                    .compose(&before.inverse())
+                    .compose(&kf.t_cam_world),
+            };
+        }
+    }
+
+    /// Applies the solution of the window handed off as `id` (see
+    /// [`crate::ba::BaOutcome::Deferred`]) while tracking went on: `poses` of the window's
+    /// keyframes (anchors after them are ignored) and `points` in the order sent. Returns
+    /// whether it was applied: not when another window replaced it, the map started over or
+    /// a loop correction moved the world since, or the sizes do not fit.
+    pub fn apply_local_ba(&mut self, id: u64, poses: &[Pose], points: &[Vec3]) -> bool {
+        let Some(p) = self.pending_ba.take_if(|p| p.id == id) else {
+            return false;
+        };
+        let fits = poses.len() >= p.window.len()
+            && points.len() == p.point_ids.len()
+            && p.segment_start == self.map.segment_start
+            && p.window.iter().all(|&k| k < self.map.keyframe_poses.len());
+        if fits {
+            self.write_back(&p.window, &p.point_ids, (poses, points), true);
+        }
+        fits
     }
 
     /// What the last local bundle adjustment did, taken (for benchmarks and diagnostics:

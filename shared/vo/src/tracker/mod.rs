@@ -102,8 +102,9 @@ pub struct Tracker {
     /// Frames seen while initialising against the current reference, posed once the map
     /// exists.
     initialising: initialising_frames::InitialisingFrames,
-    /// Where the local BA is solved (`None`: here).
+    /// Where the local BA is solved (`None`: here), and the window handed off, if any.
     ba_solver: Option<Box<dyn crate::ba::BaSolver>>,
+    pending_ba: Option<local_ba::PendingBa>,
 }
 
 impl std::fmt::Debug for Tracker {
@@ -131,6 +132,7 @@ impl Tracker {
             last_frame: None,
             initialising: Default::default(),
             ba_solver: None,
+            pending_ba: None,
         }
     }
 
@@ -231,6 +233,7 @@ impl Tracker {
         self.map.segment_start = 0;
         self.frames_since_keyframe = 0;
         self.last_frame = None;
+        self.pending_ba = None;
     }
 
     /// Moves the whole map (landmarks, keyframe poses, the reference and the last pose) by
@@ -257,6 +260,8 @@ impl Tracker {
             v.t *= c.s;
         }
         self.scale = self.scale.map(|s| s * c.s);
+        // a window solved in the world before this correction no longer fits
+        self.pending_ba = None;
     }
 
     fn output(
