@@ -8,7 +8,8 @@ sequences are built in a temporary folder as symbolic links to the clip's images
 matching lines of times.txt and of the ground truth, so nothing is copied.
 
 For each run it reads `report.json` and prints: frames, frames posed (and the share), APE
-RMSE after Sim(3), median tracked landmarks per posed frame (the pose's inliers), the KITTI
+RMSE after Sim(3), median tracked landmarks per posed frame (the pose's inliers), the share of
+posed frames that became keyframes, the KITTI
 metric where the ground truth covers 100 m, and the median time per frame. Any further
 arguments go to every `supermvo run` (for example `--frontend orb`), and `--bin` runs
 another build. `--peer ARGS` runs every sequence a second time, right after, with those
@@ -99,6 +100,8 @@ def run_one(binary, seq, out, extra):
         "posed": rep["estimated"],
         "ape": ev.get("ape", {}).get("trans", {}).get("rmse"),
         "tracked_median": statistics.median(tracked) if tracked else 0,
+        # keyframes per posed frame: with a thin map nearly every frame becomes one
+        "keyframes_pct": 100.0 * sum(1 for d in posed if d.get("keyframe")) / max(len(posed), 1),
         "t_err": kitti["t_err_pct"] if kitti else None,
         "r_err": kitti["r_err_deg_per_100m"] if kitti else None,
         "ms": rep["timing_ms"]["frame_median"],
@@ -130,7 +133,7 @@ def main():
     seeds = [int(x) for x in args.seeds.split(",")]
     if peer is not None and args.jobs > 1:
         sys.exit("clip_study: --peer compares speed, so its runs go one at a time (no --jobs)")
-    header = (f"{'run':<14} {'frames':>6} {'posed':>11} {'APE (m)':>8} {'tracked':>7} "
+    header = (f"{'run':<14} {'frames':>6} {'posed':>11} {'APE (m)':>8} {'tracked':>7} {'kf %':>5} "
               f"{'t_err %':>7} {'r_err':>6} {'ms/frame':>8}")
     if len(seeds) > 1:
         header += "  APE per seed " + " / ".join(str(x) for x in seeds) + " (row: median)"
@@ -163,7 +166,8 @@ def main():
                 name = c if s == 1 else f"{c}/{s}"
                 share = 100.0 * r["posed"] / max(r["frames"], 1)
                 print(f"{name:<14} {r['frames']:>6} {r['posed']:>4} ({share:5.1f}%) {fmt(r['ape'], '8.3f')} "
-                      f"{r['tracked_median']:>7.0f} {fmt(r['t_err'], '7.2f')} {fmt(r['r_err'], '6.2f')} "
+                      f"{r['tracked_median']:>7.0f} {r['keyframes_pct']:>5.0f} "
+                      f"{fmt(r['t_err'], '7.2f')} {fmt(r['r_err'], '6.2f')} "
                       f"{r['ms']:>8.1f}", end="")
                 if len(seeds) > 1:
                     print("  " + " / ".join(fmt(q["ape"], ".3f") for q in runs), end="")
