@@ -696,6 +696,11 @@ impl Services {
             .map_err(|e| MessageError::ipc(format!("node name '{s}'"), e))
     }
 
+    /// The samples a topic keeps for subscribers that join late (what one may request).
+    pub fn history(topic: Topic) -> usize {
+        Self::qos(topic).history
+    }
+
     fn qos(topic: Topic) -> Qos {
         match topic {
             // data: lossless, back-pressure instead of overflow; history for restarts

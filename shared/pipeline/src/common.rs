@@ -9,7 +9,7 @@ use supermvo_messages::iceoryx2::port::subscriber::Subscriber;
 use supermvo_messages::iceoryx2::prelude::ZeroCopySend;
 use supermvo_messages::{
     create_node, now_ns, FrameHeader, Ipc, IpcNode, MessageError, Progress, ProgressEvent,
-    Services, StageKind, Status, Topic, HISTORY,
+    Services, StageKind, Status, Topic,
 };
 
 /// How long a stage sleeps between polls of its inputs.
@@ -133,7 +133,7 @@ impl StageContext {
             .services
             .slice_topic::<P>(&self.node, topic, false)?
             .subscriber_builder()
-            .history_request(HISTORY)
+            .history_request(Services::history(topic))
             .create()
             .map_err(|e| MessageError::ipc(format!("{} subscriber", topic.name()), e))?)
     }
@@ -147,7 +147,7 @@ impl StageContext {
             .services
             .header_topic::<P>(&self.node, topic, false)?
             .subscriber_builder()
-            .history_request(HISTORY)
+            .history_request(Services::history(topic))
             .create()
             .map_err(|e| MessageError::ipc(format!("{} subscriber", topic.name()), e))?)
     }

@@ -166,16 +166,6 @@ type Port = supermvo_messages::iceoryx2::service::port_factory::publish_subscrib
     FrameHeader,
 >;
 
-/// A subscriber without history: a problem or solution sent before it existed is stale.
-fn subscriber(ctx: &StageContext, topic: Topic) -> Result<Subscriber<Ipc, [f64], FrameHeader>> {
-    Ok(ctx
-        .services
-        .slice_topic::<f64>(&ctx.node, topic, false)?
-        .subscriber_builder()
-        .create()
-        .map_err(|e| MessageError::ipc(format!("{} subscriber", topic.name()), e))?)
-}
-
 /// Tracking's side: hands each local BA to the back end and waits for its solution, or
 /// (real time) goes on while [`LateSolutions`] brings it.
 pub struct RemoteBa {
@@ -197,7 +187,7 @@ impl RemoteBa {
     /// The ports of the tracking stage of `ctx`; waits for each solution up to `timeout`.
     pub fn open(ctx: &StageContext, timeout: Duration) -> Result<Self> {
         let mut ba = Self::sender(ctx, timeout)?;
-        ba.solutions = Some(subscriber(ctx, Topic::BaSolutions)?);
+        ba.solutions = Some(ctx.slice_subscriber::<f64>(Topic::BaSolutions)?);
         Ok(ba)
     }
 
@@ -205,7 +195,7 @@ impl RemoteBa {
     /// the [`LateSolutions`] returned with it.
     pub fn open_deferred(ctx: &StageContext) -> Result<(Self, LateSolutions)> {
         let late = LateSolutions {
-            solutions: subscriber(ctx, Topic::BaSolutions)?,
+            solutions: ctx.slice_subscriber::<f64>(Topic::BaSolutions)?,
         };
         Ok((Self::sender(ctx, Duration::ZERO)?, late))
     }
@@ -379,7 +369,7 @@ impl BaServer {
             .create()
             .map_err(|e| MessageError::ipc("local BA solutions publisher", e))?;
         Ok(Self {
-            problems: subscriber(ctx, Topic::BaProblems)?,
+            problems: ctx.slice_subscriber::<f64>(Topic::BaProblems)?,
             solutions,
             log,
         })
