@@ -30,7 +30,8 @@
 //! Where each part lives: the map it builds ([`crate::map`]), the settings ([`config`]), the
 //! per-frame types ([`frame`]), two-view initialisation ([`initialisation`]) and the frames
 //! seen meanwhile, posed once the map exists ([`initialising_frames`]), tracking a
-//! frame with matches and the keyframe decision ([`tracking`]), tracking one without
+//! frame with matches ([`tracking`]), the keyframe decision and what a keyframe adds to the
+//! map ([`keyframe_policy`]), tracking one without
 //! ([`projection`]), matching by projection ([`map_search`]), what becomes of a frame that
 //! cannot be posed ([`recovery`]: the reference kept, relocalisation, a new map) and the
 //! local bundle adjustment ([`local_ba`]); this file holds the tracker's state, the
@@ -41,6 +42,7 @@ mod covisible_triangulation;
 mod frame;
 mod initialisation;
 mod initialising_frames;
+mod keyframe_policy;
 mod local_ba;
 mod map_search;
 mod projection;
