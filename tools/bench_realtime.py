@@ -16,7 +16,10 @@ capture-to-pose p50 and p99, frames posed and the APE after Sim(3). Prints one m
 alone on the machine: they measure what the cores allow.
 
     python3 tools/bench_realtime.py [--profile realtime] [--runs 3] [--clips 00,07]
-                                    [--json out.json] [--synth /tmp/synth]
+                                    [--json out.json] [--synth /tmp/synth] [--speed 2]
+
+`--speed 2` replays twice as fast as the sequence's own rate (KITTI at 20 Hz): the profile's
+file with `pipeline.speed` set, given as `--config` (the lossless runs do not change).
 """
 import argparse
 import json
@@ -45,7 +48,9 @@ def ape(out):
 
 
 def realtime_run(binary, seq, out, profile):
-    run([binary, "run", seq, "--profile", profile, "--quiet", "--out", out])
+    """`profile` is the arguments that choose the configuration (`--profile P` or
+    `--config FILE`)."""
+    run([binary, "run", seq] + profile + ["--quiet", "--out", out])
     rep, a = ape(out)
     with open(os.path.join(out, "metrics.json")) as f:
         m = json.load(f)
@@ -74,9 +79,20 @@ def main():
     ap.add_argument("--clips", default=",".join(clip_study.CLIPS))
     ap.add_argument("--synth", default=os.path.join(tempfile.gettempdir(), "supermvo-bench-synth"))
     ap.add_argument("--json")
+    ap.add_argument("--speed", type=float, default=1.0, help="replay speed factor (2: KITTI at 20 Hz)")
     args = ap.parse_args()
 
     work = tempfile.mkdtemp(prefix="bench_realtime_")
+    realtime = ["--profile", args.profile]
+    if args.speed != 1.0:
+        with open(os.path.join(ROOT, "config", f"{args.profile}.toml")) as f:
+            text = f.read()
+        if "[pipeline]" not in text or "speed" in text:
+            sys.exit(f"bench_realtime: config/{args.profile}.toml: expected a [pipeline] table without `speed`")
+        fast = os.path.join(work, f"{args.profile}_speed.toml")
+        with open(fast, "w") as f:
+            f.write(text.replace("[pipeline]", f"[pipeline]\nspeed = {args.speed}", 1))
+        realtime = ["--config", fast]
     seqs = [(c, clip_study.subsample(c, 1, work)) for c in args.clips.split(",") if c]
     urban = os.path.join(args.synth, "sequences", "urban-loop")
     if not os.path.isdir(urban):
@@ -92,7 +108,7 @@ def main():
         default_out = os.path.join(work, name, "default")
         run([args.bin, "run", seq, "--mode", "inprocess", "--quiet", "--out", default_out])
         _, default = ape(default_out)
-        runs = [realtime_run(args.bin, seq, os.path.join(work, name, f"rt{i}"), args.profile)
+        runs = [realtime_run(args.bin, seq, os.path.join(work, name, f"rt{i}"), realtime)
                 for i in range(args.runs)]
         row = {"sequence": name, "lossless_ape": lossless, "default_ape": default, "runs": runs}
         rows.append(row)
@@ -113,7 +129,7 @@ def main():
               f"| {row['lossless_ape']:.3f} | {med / row['lossless_ape']:.2f}x | {row['default_ape']:.3f} |")
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"profile": args.profile, "rows": rows}, f, indent=1)
+            json.dump({"profile": args.profile, "speed": args.speed, "rows": rows}, f, indent=1)
 
 
 if __name__ == "__main__":

@@ -74,8 +74,21 @@ def main() -> int:
         ok_rss &= growth < 5.0
         rss[proc] = {"after_warmup_kb": b, "last_minute_kb": l, "growth_percent": round(growth, 2)}
 
+    # capture-to-pose latency per minute of the replay (frame seq times the frame interval)
+    interval = period / len(times)
+    per_minute = {}
+    for r in rows:
+        if r[3] == "ok" and r[7]:
+            per_minute.setdefault(int(int(r[0]) * interval // 60), []).append(float(r[7]))
+    minutes = []
+    for minute, lat in sorted(per_minute.items()):
+        lat.sort()
+        q = lambda f: lat[min(len(lat) - 1, int(f * len(lat)))]
+        minutes.append({"minute": minute, "frames": len(lat), "p50": q(0.5), "p95": q(0.95), "p99": q(0.99)})
+
     report = {
         "sequence": str(args.seq), "loops": loops, "frames": total, "duration_s": round(end, 1),
+        "latency_per_minute_ms": minutes,
         "statuses": statuses, "unreported_drops": unreported, "duplicates": duplicates,
         "restarts": len(m["restarts"]), "rss": rss,
         "end_to_end_ms": m["end_to_end_ms"], "stage_latency_ms": m["stage_latency_ms"],
@@ -90,6 +103,12 @@ def main() -> int:
     lat = dict(m["stage_latency_ms"])
     lat["capture -> pose"] = m["end_to_end_ms"]
     md += [f"| {k} | {v['p50']:.1f} | {v['p95']:.1f} | {v['p99']:.1f} | {v['max']:.1f} |" for k, v in lat.items()]
+    md += ["", "| minute | frames posed | capture -> pose p50 (ms) | p95 | p99 |", "|---|---|---|---|---|"]
+    md += [f"| {x['minute']} | {x['frames']} | {x['p50']:.0f} | {x['p95']:.0f} | {x['p99']:.0f} |" for x in minutes]
+    steady = [x["p50"] for x in minutes[1:-1]] or [x["p50"] for x in minutes]
+    if steady:
+        md += ["", f"p50 per minute after the first: {min(steady):.0f}-{max(steady):.0f} ms "
+                   f"({max(steady) / max(min(steady), 1e-9):.2f}x from the lowest to the highest)"]
     text = "\n".join(md)
     (args.out / "soak_report.md").write_text(text + "\n")
     print(text)
