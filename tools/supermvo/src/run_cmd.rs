@@ -203,6 +203,12 @@ fn check_calibration(seq: &Sequence) -> Result<GrayImage> {
 /// Runs `supermvo run`.
 pub fn run(args: &RunArgs) -> Result<()> {
     let cfg = args.config()?;
+    if args.mode == Mode::Inprocess && cfg.pipeline.loops > 1 {
+        bail!(
+            "--loops {} (pipeline.loops) replays the sequence through the daemon only; drop --mode inprocess, or use --loops 1",
+            cfg.pipeline.loops
+        );
+    }
     let mut seq = Sequence::open_with_camera(&args.seq_dir, cfg.pipeline.camera.as_deref())?;
     let lens = features::keypoint_lens(&cfg.pipeline, &mut seq);
     check_calibration(&seq)?;

@@ -99,6 +99,18 @@ fn bad_sequences_are_clear_errors() {
         &["run", seq.to_str().unwrap()],
         &["principal point", "outside the 64x64 images"],
     );
+    // a replay in a loop asked of the in-process run, which goes through each frame once
+    common::expect_error(
+        &[
+            "run",
+            seq.to_str().unwrap(),
+            "--mode",
+            "inprocess",
+            "--loops",
+            "2",
+        ],
+        &["--loops 2", "daemon only", "drop --mode inprocess"],
+    );
 }
 
 /// A KITTI 00 excerpt with a black frame, a stretch without motion (one frame repeated) and a
