@@ -19,6 +19,9 @@ use supermvo_inference::Features;
 use supermvo_messages::{BackendState, CorrectionMsg, FeatureLayout, FrameHeader, Status};
 use supermvo_vo::loops::{Correction, LoopCloser, LoopConfig, LoopEdge};
 
+/// The `state` code of a frame tracking failed on (`frames.csv`, `PoseMsg::state`).
+pub const LOST_STATE: u32 = 2;
+
 /// Name of the keyframe log in the output folder.
 pub const KEYFRAMES_FILE: &str = "keyframes.bin";
 
@@ -31,6 +34,8 @@ pub struct PosedFrame<'a> {
     pub pose: Option<[f64; 12]>,
     /// Whether it became a keyframe.
     pub keyframe: bool,
+    /// Whether tracking failed on it (state `Lost`).
+    pub lost: bool,
     /// Corrections the tracker had applied when it estimated the poses.
     pub corrections: u32,
     /// Earlier frames it posed: `(seq, T_world_cam)`.
@@ -81,6 +86,7 @@ impl LoopClosing {
                 seq: r.seq,
                 pose: r.pose,
                 keyframe: r.keyframe,
+                lost: r.state == LOST_STATE,
                 corrections: r.corrections,
                 backfilled: &backfilled,
             };
@@ -117,6 +123,9 @@ impl LoopClosing {
             let p = Pose::from_row_major_3x4(p);
             self.closer
                 .add_frame_at(*seq as usize, &p, frame.corrections as usize);
+        }
+        if frame.lost {
+            self.closer.add_lost_frame();
         }
         let pose = Pose::from_row_major_3x4(&frame.pose?);
         let (seq, applied) = (frame.seq as usize, frame.corrections as usize);

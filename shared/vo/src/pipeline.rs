@@ -72,6 +72,9 @@ pub fn close_loops(
         // frames posed by this one's initialisation belong before it, with the reference
         loops.add_frame(late.index, &late.t_world_cam);
     }
+    if out.state == crate::tracker::TrackingState::Lost {
+        loops.add_lost_frame();
+    }
     let pose = out.t_world_cam?;
     if !out.keyframe {
         loops.add_frame(out.index, &pose);

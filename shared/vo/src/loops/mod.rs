@@ -105,6 +105,10 @@ struct KeyframeEntry {
     /// Triangulated point of each keypoint, in this keyframe's camera frame.
     points: Vec<Option<Vec3>>,
     vlad: Option<Vec<f32>>,
+    /// Tracking failed on a frame between this keyframe and the one before (the tracker
+    /// may have started a new map, whose placement and scale the odometry does not tie to
+    /// the old one).
+    after_gap: bool,
 }
 
 /// A recognised but not yet confirmed place.
@@ -133,6 +137,8 @@ pub struct LoopCloser {
     /// as reported).
     frames: Vec<(usize, Sim3, usize, Pose)>,
     disabled: Option<String>,
+    /// Tracking failed on a frame since the last keyframe.
+    gap: bool,
 }
 
 impl std::fmt::Debug for LoopCloser {
@@ -159,6 +165,7 @@ impl LoopCloser {
             fixes: vec![Sim3::identity()],
             frames: Vec::new(),
             disabled: None,
+            gap: false,
         }
     }
 
@@ -215,6 +222,12 @@ impl LoopCloser {
     }
 
     /// [`LoopCloser::add_frame`] for a pose the tracker reported after `applied` corrections.
+    /// Notes a frame tracking failed on: the next keyframe's odometry link to the one
+    /// before is weak in the pose graph (see `after_gap`).
+    pub fn add_lost_frame(&mut self) {
+        self.gap = true;
+    }
+
     pub fn add_frame_at(&mut self, frame: usize, t_world_cam: &Pose, applied: usize) {
         if let Some(k) = self.keyframes.len().checked_sub(1) {
             let odom = self.fix(applied).inverse().compose(&sim3_of(t_world_cam));
@@ -277,6 +290,7 @@ impl LoopCloser {
             desc,
             points: Vec::new(),
             vlad: None,
+            after_gap: std::mem::take(&mut self.gap) && index > 0,
         });
         self.frames.push((frame, odom, index, *t_world_cam));
         if self.disabled.is_some() {

@@ -26,7 +26,14 @@ impl LoopCloser {
                 .inverse()
                 .compose(&self.keyframes[k].odom);
             let step = z.t.norm().max(1e-3);
-            if let Ok(f) = Between::new(k - 1, k, z, &info(0.002, 0.02 * step, 0.005)) {
+            // across a loss the tracker's new map is placed and scaled by guesses (the last
+            // pose, the median depth): a loop, not this edge, decides where it lies
+            let sigmas = if self.keyframes[k].after_gap {
+                (0.1, (10.0 * step).max(1.0), 0.5)
+            } else {
+                (0.002, 0.02 * step, 0.005)
+            };
+            if let Ok(f) = Between::new(k - 1, k, z, &info(sigmas.0, sigmas.1, sigmas.2)) {
                 graph.between.push(f);
             }
         }
