@@ -242,6 +242,9 @@ pub struct PoseMsg {
 }
 
 impl PoseMsg {
+    /// [`PoseMsg::state`] of a frame tracking failed on.
+    pub const LOST: u32 = 2;
+
     /// The earlier frames this frame posed: the `backfilled_count` entries in use.
     pub fn backfilled_poses(&self) -> &[BackfilledPose] {
         let n = (self.backfilled_count as usize).min(MAX_BACKFILLED);

@@ -225,7 +225,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
                     seq: h.seq,
                     pose: (p.has_pose == 1).then_some(p.t_world_cam),
                     keyframe: p.keyframe == 1,
-                    lost: p.state == crate::loop_closing::LOST_STATE,
+                    lost: p.state == PoseMsg::LOST,
                     corrections: p.corrections,
                     backfilled: &backfilled,
                 };

@@ -16,11 +16,8 @@ use std::path::{Path, PathBuf};
 use supermvo_dataset::Calibration;
 use supermvo_geometry::Pose;
 use supermvo_inference::Features;
-use supermvo_messages::{BackendState, CorrectionMsg, FeatureLayout, FrameHeader, Status};
+use supermvo_messages::{BackendState, CorrectionMsg, FeatureLayout, FrameHeader, PoseMsg, Status};
 use supermvo_vo::loops::{Correction, LoopCloser, LoopConfig, LoopEdge};
-
-/// The `state` code of a frame tracking failed on (`frames.csv`, `PoseMsg::state`).
-pub const LOST_STATE: u32 = 2;
 
 /// Name of the keyframe log in the output folder.
 pub const KEYFRAMES_FILE: &str = "keyframes.bin";
@@ -86,7 +83,7 @@ impl LoopClosing {
                 seq: r.seq,
                 pose: r.pose,
                 keyframe: r.keyframe,
-                lost: r.state == LOST_STATE,
+                lost: r.state == PoseMsg::LOST,
                 corrections: r.corrections,
                 backfilled: &backfilled,
             };

@@ -69,7 +69,7 @@ pub fn pose_msg(o: &FrameOutput, corrections: u32) -> PoseMsg {
         state: match o.state {
             TrackingState::Initializing => 0,
             TrackingState::Tracking => 1,
-            TrackingState::Lost => crate::loop_closing::LOST_STATE,
+            TrackingState::Lost => PoseMsg::LOST,
         },
         has_pose: o.t_world_cam.is_some() as u32,
         t_world_cam: o

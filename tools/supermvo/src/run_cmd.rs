@@ -556,7 +556,10 @@ fn run_multiprocess(
         poses: est.iter().map(|e| e.1).collect(),
         quaternions: None,
     };
-    let lost = records.iter().filter(|r| r.state == 2).count();
+    let lost = records
+        .iter()
+        .filter(|r| r.state == supermvo_messages::PoseMsg::LOST)
+        .count();
     let unposed: Vec<usize> = records
         .iter()
         .filter(|r| r.status != "end")

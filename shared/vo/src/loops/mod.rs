@@ -221,13 +221,13 @@ impl LoopCloser {
         self.add_frame_at(frame, t_world_cam, self.corrections());
     }
 
-    /// [`LoopCloser::add_frame`] for a pose the tracker reported after `applied` corrections.
     /// Notes a frame tracking failed on: the next keyframe's odometry link to the one
     /// before is weak in the pose graph (see `after_gap`).
     pub fn add_lost_frame(&mut self) {
         self.gap = true;
     }
 
+    /// [`LoopCloser::add_frame`] for a pose the tracker reported after `applied` corrections.
     pub fn add_frame_at(&mut self, frame: usize, t_world_cam: &Pose, applied: usize) {
         if let Some(k) = self.keyframes.len().checked_sub(1) {
             let odom = self.fix(applied).inverse().compose(&sim3_of(t_world_cam));
