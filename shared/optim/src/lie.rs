@@ -272,6 +272,15 @@ pub struct Sim3 {
 }
 
 impl Sim3 {
+    /// The same similarity with its rotation projected back onto SO(3) (see
+    /// [`crate::so3::nearest_rotation`]).
+    pub fn with_nearest_rotation(&self) -> Self {
+        Self {
+            r: crate::so3::nearest_rotation(&self.r),
+            ..*self
+        }
+    }
+
     /// A rigid transform (scale 1).
     pub fn from_se3(x: &Se3) -> Self {
         Self {

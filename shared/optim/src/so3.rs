@@ -61,7 +61,41 @@ pub fn so3_exp(w: &Vector3<f64>) -> Matrix3<f64> {
     Rotation3::new(*w).into_inner()
 }
 
+/// The rotation nearest to `m` (Frobenius norm): the orthonormal polar factor, through the
+/// SVD, with the sign that keeps the determinant +1. A product of many rotations drifts off
+/// SO(3) by rounding; where poses go round a loop (the tracker applying the loop closer's
+/// corrections and reporting poses it then corrects again) that error grows with every
+/// pass unless each pass starts from a rotation again.
+pub fn nearest_rotation(m: &Matrix3<f64>) -> Matrix3<f64> {
+    let svd = m.svd(true, true);
+    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
+        return *m;
+    };
+    let mut d = Matrix3::identity();
+    if (u * v_t).determinant() < 0.0 {
+        d[(2, 2)] = -1.0;
+    }
+    u * d * v_t
+}
+
 /// Skew-symmetric matrix `[v]x` with `[v]x w = v x w`.
 pub fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A rotation stays itself; a matrix a little off SO(3) comes back a rotation next to it.
+    #[test]
+    fn nearest_rotation_projects_onto_so3() {
+        let r = so3_exp(&Vector3::new(0.3, -1.2, 0.7));
+        assert!((nearest_rotation(&r) - r).abs().max() < 1e-14);
+        let skewed = r * Matrix3::new(1.0, 3e-4, 0.0, -1e-4, 1.0002, 2e-4, 0.0, 0.0, 0.9999);
+        let p = nearest_rotation(&skewed);
+        assert!((p.transpose() * p - Matrix3::identity()).abs().max() < 1e-14);
+        assert!((p.determinant() - 1.0).abs() < 1e-14);
+        assert!((p - r).abs().max() < 5e-4, "{}", (p - r).abs().max());
+    }
 }

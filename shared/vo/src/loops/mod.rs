@@ -51,6 +51,13 @@ pub struct LoopConfig {
     pub reprojection_px: f64,
     /// Consecutive keyframes that must see the same place before a loop is accepted.
     pub consistency: usize,
+    /// Keyframes after a correction during which further loops are only added to the pose
+    /// graph: driving on along a place seen before, every other keyframe confirms a loop,
+    /// and solving the graph and correcting the tracker for each (ORB-SLAM instead ignores
+    /// loops for 10 keyframes) cost the back end a core and kept the tracker absorbing
+    /// corrections. The next correction after the cool-down, and the final trajectory,
+    /// use every loop found.
+    pub cooldown: usize,
 }
 
 impl Default for LoopConfig {
@@ -64,6 +71,7 @@ impl Default for LoopConfig {
             min_inliers: 20,
             reprojection_px: 3.0,
             consistency: 2,
+            cooldown: 10,
         }
     }
 }
@@ -139,6 +147,10 @@ pub struct LoopCloser {
     disabled: Option<String>,
     /// Tracking failed on a frame since the last keyframe.
     gap: bool,
+    /// Keyframe index of the last correction.
+    last_correction: Option<usize>,
+    /// Loops accepted since the pose graph was last solved.
+    unsolved_loops: bool,
 }
 
 impl std::fmt::Debug for LoopCloser {
@@ -166,6 +178,8 @@ impl LoopCloser {
             frames: Vec::new(),
             disabled: None,
             gap: false,
+            last_correction: None,
+            unsolved_loops: false,
         }
     }
 
@@ -362,11 +376,21 @@ impl LoopCloser {
             );
             self.loops.push((d.matched, d.keyframe, d.rel, edge));
         }
+        if self
+            .last_correction
+            .is_some_and(|l| j <= l + self.cfg.cooldown)
+        {
+            self.unsolved_loops = true;
+            return None;
+        }
         self.optimise();
+        self.last_correction = Some(j);
         let cur = &self.keyframes[j];
-        let to_corrected = cur.opt.compose(&cur.odom.inverse());
+        let to_corrected = cur.opt.compose(&cur.odom.inverse()).with_nearest_rotation();
         // Relative to what the tracker already applied.
-        let correction = to_corrected.compose(&self.fix(usize::MAX).inverse());
+        let correction = to_corrected
+            .compose(&self.fix(usize::MAX).inverse())
+            .with_nearest_rotation();
         self.fixes.push(to_corrected);
         Some(Correction {
             frame: cur.frame,
@@ -375,16 +399,22 @@ impl LoopCloser {
     }
 
     /// The corrected pose `T_world_cam` of every frame recorded so far, in frame order: each
-    /// frame moves with its keyframe. Until a loop is closed these are the poses as reported.
+    /// frame moves with its keyframe, by the pose graph over every loop accepted (solved again
+    /// when loops came after the last correction). Until a loop is closed these are the poses
+    /// as reported.
     pub fn trajectory(&self) -> Vec<(usize, Pose)> {
         if self.loops.is_empty() {
             return self.frames.iter().map(|f| (f.0, f.3)).collect();
         }
+        let opt: Vec<Sim3> = match self.unsolved_loops {
+            true => self.solve(),
+            false => self.keyframes.iter().map(|k| k.opt).collect(),
+        };
         self.frames
             .iter()
             .map(|(frame, odom, k, _)| {
                 let kf = &self.keyframes[*k];
-                let corrected = kf.opt.compose(&kf.odom.inverse()).compose(odom);
+                let corrected = opt[*k].compose(&kf.odom.inverse()).compose(odom);
                 (*frame, pose_of(&corrected))
             })
             .collect()

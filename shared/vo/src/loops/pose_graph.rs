@@ -11,6 +11,15 @@ impl LoopCloser {
     /// Sim(3) pose graph over every keyframe: odometry between neighbours, the loops (Cauchy
     /// kernel against a wrong one), the first keyframe anchored.
     pub(super) fn optimise(&mut self) {
+        let solved = self.solve();
+        for (k, v) in self.keyframes.iter_mut().zip(solved) {
+            k.opt = v;
+        }
+        self.unsolved_loops = false;
+    }
+
+    /// The keyframes' best estimates after [`LoopCloser::optimise`], without keeping them.
+    pub(super) fn solve(&self) -> Vec<Sim3> {
         let n = self.keyframes.len();
         let values: Vec<Sim3> = self.keyframes.iter().map(|k| k.opt).collect();
         let mut graph = PoseGraph::<Sim3, 7>::new((0..n).collect(), values);
@@ -57,7 +66,7 @@ impl LoopCloser {
                 }
             }
             let Ok(mut lm) = Lm::new(&mut graph, LmParams::default()) else {
-                return;
+                break;
             };
             let summary = lm.optimize();
             tracing::debug!(
@@ -68,15 +77,19 @@ impl LoopCloser {
                 "loop pose graph"
             );
         }
-        for (k, v) in self.keyframes.iter_mut().zip(graph.values) {
-            k.opt = v;
-        }
+        graph
+            .values
+            .iter()
+            .map(Sim3::with_nearest_rotation)
+            .collect()
     }
 }
 
+/// The similarity of a reported pose, its rotation projected onto SO(3) (the tracker's poses
+/// come back after corrections this module issued: see [`Sim3::with_nearest_rotation`]).
 pub(super) fn sim3_of(p: &Pose) -> Sim3 {
     Sim3 {
-        r: p.r,
+        r: supermvo_optim::so3::nearest_rotation(&p.r),
         t: p.t,
         s: 1.0,
     }
