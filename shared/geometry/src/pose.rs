@@ -37,15 +37,6 @@ impl Pose {
         Self { r, t }
     }
 
-    /// The same pose with its rotation projected back onto SO(3) (the nearest rotation; see
-    /// [`supermvo_optim::so3::nearest_rotation`]).
-    pub fn with_nearest_rotation(&self) -> Self {
-        Self {
-            r: supermvo_optim::so3::nearest_rotation(&self.r),
-            t: self.t,
-        }
-    }
-
     /// Pose from a quaternion `(w, x, y, z)`, normalised first. Returns `None` for a
     /// zero or non-finite quaternion.
     pub fn from_quaternion(w: f64, x: f64, y: f64, z: f64, t: Vec3) -> Option<Self> {
