@@ -58,6 +58,14 @@ pub struct LoopConfig {
     /// corrections. The next correction after the cool-down, and the final trajectory,
     /// use every loop found.
     pub cooldown: usize,
+    /// A keyframe whose place is verified against an earlier keyframe's (a revisit) is
+    /// dropped from place recognition once no later keyframe triangulates against it (four
+    /// keyframes on): its descriptors, keypoints, points and VLAD vector are freed and it is
+    /// never a candidate again, the earlier keyframe standing for the place. Its pose stays
+    /// in the pose graph. Memory and the cost of scoring candidates then grow with the
+    /// places seen, not with the time spent driving through them (a replay looped for ten
+    /// minutes otherwise grows the back end by 225 kB per keyframe).
+    pub cull_revisits: bool,
 }
 
 impl Default for LoopConfig {
@@ -72,6 +80,7 @@ impl Default for LoopConfig {
             reprojection_px: 3.0,
             consistency: 2,
             cooldown: 10,
+            cull_revisits: true,
         }
     }
 }
@@ -101,6 +110,10 @@ pub struct Correction {
     pub sim3: Sim3,
 }
 
+/// Keyframes before the newest that it is triangulated against (the one with the widest
+/// baseline is taken).
+const TRIANGULATION_KEYFRAMES: usize = 4;
+
 struct KeyframeEntry {
     frame: usize,
     /// Pose in the odometry frame (the tracker's frame with all corrections undone).
@@ -117,6 +130,10 @@ struct KeyframeEntry {
     /// may have started a new map, whose placement and scale the odometry does not tie to
     /// the old one).
     after_gap: bool,
+    /// Its place was verified against an earlier keyframe's (see `LoopConfig::cull_revisits`).
+    revisit: bool,
+    /// Its place-recognition data was freed: never a candidate again.
+    culled: bool,
 }
 
 /// A recognised but not yet confirmed place.
@@ -305,6 +322,8 @@ impl LoopCloser {
             points: Vec::new(),
             vlad: None,
             after_gap: std::mem::take(&mut self.gap) && index > 0,
+            revisit: false,
+            culled: false,
         });
         self.frames.push((frame, odom, index, *t_world_cam));
         if self.disabled.is_some() {
@@ -312,7 +331,34 @@ impl LoopCloser {
         }
         self.triangulate(index);
         self.update_vocabulary();
-        self.detect(index)
+        let correction = self.detect(index);
+        self.cull_revisits(index);
+        correction
+    }
+
+    /// Frees the place-recognition data of revisits that no later keyframe triangulates
+    /// against any more (see `LoopConfig::cull_revisits`); `newest` is the keyframe just
+    /// added.
+    fn cull_revisits(&mut self, newest: usize) {
+        if !self.cfg.cull_revisits {
+            return;
+        }
+        let Some(k) = newest.checked_sub(TRIANGULATION_KEYFRAMES) else {
+            return;
+        };
+        let kf = &mut self.keyframes[k];
+        if kf.revisit && !kf.culled {
+            kf.culled = true;
+            kf.keypoints = Vec::new();
+            kf.desc = DMatrix::zeros(0, 0);
+            kf.points = Vec::new();
+            kf.vlad = None;
+        }
+    }
+
+    /// Keyframes that hold their place-recognition data (candidates for later loops).
+    pub fn places(&self) -> usize {
+        self.keyframes.iter().filter(|k| !k.culled).count()
     }
 
     /// Verifies the best places for keyframe `j`; closes a loop once confirmed.
@@ -340,6 +386,7 @@ impl LoopCloser {
             self.pending.clear();
             return None;
         };
+        self.keyframes[j].revisit = true;
         tracing::debug!(
             query = self.keyframes[j].frame,
             matched = self.keyframes[det.matched].frame,
@@ -418,5 +465,151 @@ impl LoopCloser {
                 (*frame, pose_of(&corrected))
             })
             .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)] // test code
+    use super::*;
+    use supermvo_geometry::Mat3;
+
+    /// A ring road of radius 60 m with 1500 points beside it, each with its own random
+    /// descriptor (64 values); a keyframe every 3 m (126 a lap) sees the points ahead of it.
+    struct Ring {
+        points: Vec<(Vec3, Vec<f32>)>,
+        calib: Calibration,
+    }
+
+    const RADIUS: f64 = 60.0;
+    const KEYFRAMES_PER_LAP: usize = 126;
+
+    /// A deterministic generator of values in [-1, 1).
+    fn lcg(state: &mut u64) -> f64 {
+        *state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (*state >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+    }
+
+    impl Ring {
+        fn new() -> Self {
+            let mut s = 7u64;
+            let points = (0..1500)
+                .map(|_| {
+                    let a = std::f64::consts::PI * lcg(&mut s);
+                    let side = if lcg(&mut s) > 0.0 { 1.0 } else { -1.0 };
+                    let r = RADIUS + side * (5.0 + 5.0 * (lcg(&mut s) + 1.0));
+                    let p = Vec3::new(r * a.cos(), 2.0 * lcg(&mut s) - 1.0, r * a.sin());
+                    let d = (0..64).map(|_| lcg(&mut s) as f32).collect();
+                    (p, d)
+                })
+                .collect();
+            let calib = Calibration {
+                fx: 500.0,
+                fy: 500.0,
+                cx: 320.0,
+                cy: 240.0,
+            };
+            Self { points, calib }
+        }
+
+        /// `T_world_cam` of keyframe `k`, driving anticlockwise seen from above (-y).
+        fn pose(k: usize) -> Pose {
+            let a = 3.0 * k as f64 / RADIUS;
+            let (s, c) = a.sin_cos();
+            let r = Mat3::from_columns(&[
+                Vec3::new(c, 0.0, s),
+                Vec3::new(0.0, 1.0, 0.0),
+                Vec3::new(-s, 0.0, c),
+            ]);
+            Pose::new(r, Vec3::new(RADIUS * c, 0.0, RADIUS * s))
+        }
+
+        /// What keyframe `k` sees: the points within 40 m in front of it, in the image, with
+        /// 0.3 px of keypoint noise and a little descriptor noise.
+        fn features(&self, k: usize) -> Features {
+            let t_world_cam = Self::pose(k);
+            let mut s = 1000 + k as u64;
+            let (mut keypoints, mut descriptors) = (Vec::new(), Vec::new());
+            for (p, d) in &self.points {
+                let q = t_world_cam.r.transpose() * (p - t_world_cam.t);
+                if q.z < 2.0 || q.z > 40.0 {
+                    continue;
+                }
+                let u = self.calib.fx * q.x / q.z + self.calib.cx + 0.3 * lcg(&mut s);
+                let v = self.calib.fy * q.y / q.z + self.calib.cy + 0.3 * lcg(&mut s);
+                if !(0.0..640.0).contains(&u) || !(0.0..480.0).contains(&v) {
+                    continue;
+                }
+                keypoints.push([u as f32, v as f32]);
+                descriptors.extend(d.iter().map(|x| x + 0.02 * lcg(&mut s) as f32));
+            }
+            Features {
+                scores: vec![1.0; keypoints.len()],
+                keypoints,
+                descriptors,
+                dim: 64,
+                image_size: (640, 480),
+            }
+        }
+    }
+
+    /// Drives the ring `laps` times with exact odometry; returns the loop closer.
+    fn drive(laps: f64, cull_revisits: bool) -> LoopCloser {
+        let ring = Ring::new();
+        let cfg = LoopConfig {
+            cull_revisits,
+            ..LoopConfig::default()
+        };
+        let mut closer = LoopCloser::new(ring.calib.clone(), cfg);
+        for k in 0..(laps * KEYFRAMES_PER_LAP as f64) as usize {
+            let t_world_cam = Ring::pose(k);
+            if let Some(c) = closer.add_keyframe(k, &t_world_cam, &ring.features(k)) {
+                // exact odometry: the correction moves nothing by more than rounding
+                assert!((c.sim3.s - 1.0).abs() < 0.01, "scale {}", c.sim3.s);
+            }
+        }
+        closer
+    }
+
+    /// Driving a place again adds no candidate for place recognition: after two and a half
+    /// laps the loop closer holds the first lap's keyframes (and the few revisits it did not
+    /// verify), not all of them, and still closes the loops of the third lap.
+    #[test]
+    fn revisited_places_are_not_kept_twice() {
+        let kept = drive(2.5, false);
+        let culled = drive(2.5, true);
+        let total = (2.5 * KEYFRAMES_PER_LAP as f64) as usize;
+        eprintln!(
+            "places kept: {} of {total} keyframes ({} loops), {} without culling ({} loops)",
+            culled.places(),
+            culled.loops().len(),
+            kept.places(),
+            kept.loops().len()
+        );
+        assert_eq!(kept.places(), total);
+        assert!(kept.loops().len() >= 10, "{} loops", kept.loops().len());
+        // measured: 129 of 315 kept (126 a lap), 188 loops; 315 and 160 without culling
+        assert!(
+            culled.places() < KEYFRAMES_PER_LAP + KEYFRAMES_PER_LAP / 5,
+            "{} of {total} keyframes kept as places ({} a lap)",
+            culled.places(),
+            KEYFRAMES_PER_LAP
+        );
+        let late = |c: &LoopCloser| {
+            c.loops()
+                .iter()
+                .filter(|l| l.query_frame >= 2 * KEYFRAMES_PER_LAP)
+                .count()
+        };
+        assert!(late(&culled) >= 10, "{} loops in lap 3", late(&culled));
+        assert!(
+            culled
+                .loops()
+                .iter()
+                .all(|l| l.match_frame < KEYFRAMES_PER_LAP + 5),
+            "a loop matched a revisit"
+        );
     }
 }

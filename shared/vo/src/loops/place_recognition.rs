@@ -34,7 +34,11 @@ impl LoopCloser {
             self.vocabulary = Some(vocabulary);
         }
         if let Some(voc) = &self.vocabulary {
-            for k in self.keyframes.iter_mut().filter(|k| k.vlad.is_none()) {
+            for k in self
+                .keyframes
+                .iter_mut()
+                .filter(|k| k.vlad.is_none() && !k.culled)
+            {
                 k.vlad = Some(vlad(&k.desc, voc));
             }
         }

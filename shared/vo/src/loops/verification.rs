@@ -9,12 +9,13 @@ use supermvo_geometry::{umeyama, Mat3, Vec3};
 use supermvo_optim::lie::{LieGroup, Sim3};
 
 impl LoopCloser {
-    /// Triangulates keyframe `k`'s keypoints against the earlier keyframe (of the last four)
+    /// Triangulates keyframe `k`'s keypoints against the earlier keyframe (of the last
+    /// `TRIANGULATION_KEYFRAMES`)
     /// with the widest baseline, using the odometry between them.
     pub(super) fn triangulate(&mut self, k: usize) {
         let cur = &self.keyframes[k];
         let mut points = vec![None; cur.keypoints.len()];
-        let best = (k.saturating_sub(4)..k).max_by(|&a, &b| {
+        let best = (k.saturating_sub(super::TRIANGULATION_KEYFRAMES)..k).max_by(|&a, &b| {
             let da = (self.keyframes[a].odom.t - cur.odom.t).norm();
             let db = (self.keyframes[b].odom.t - cur.odom.t).norm();
             da.total_cmp(&db)
