@@ -8,28 +8,48 @@ use supermvo_optim::lie::{LieGroup, Sim3};
 use supermvo_optim::{Between, Kernel, Lm, LmParams, PoseGraph, Prior};
 
 impl LoopCloser {
-    /// Sim(3) pose graph over every keyframe: odometry between neighbours, the loops (Cauchy
-    /// kernel against a wrong one), the first keyframe anchored.
+    /// Solves the Sim(3) pose graph (odometry between neighbouring keyframes, the loops with
+    /// a Cauchy kernel against a wrong one, the first keyframe anchored) over the keyframes
+    /// since the map was last tied together (see [`LoopCloser::solve`]) and keeps the result.
     pub(super) fn optimise(&mut self) {
         let solved = self.solve();
+        self.solves += 1;
+        self.free_in_last_solve = self.keyframes.len() - self.free_from();
         for (k, v) in self.keyframes.iter_mut().zip(solved) {
             k.opt = v;
         }
         self.unsolved_loops = false;
+        self.tied = self.loops.iter().map(|l| l.1).max();
+    }
+
+    /// The first keyframe free in a solve (see [`LoopCloser::solve`]).
+    fn free_from(&self) -> usize {
+        self.tied
+            .map_or(0, |k| k.saturating_sub(self.cfg.pose_graph_margin))
+            .min(self.keyframes.len().saturating_sub(1))
     }
 
     /// The keyframes' best estimates after [`LoopCloser::optimise`], without keeping them.
+    /// The keyframes free in it are those since the map was last made consistent: every
+    /// keyframe until a loop has been solved, then those after the newest keyframe a solved
+    /// loop tied to the map, less `LoopConfig::pose_graph_margin`. Older keyframes that a
+    /// factor of theirs reaches enter held at their current estimate; the others are left as
+    /// they are. A new loop then corrects the drift since the last one, as far back as it
+    /// goes, and the cost of a solve no longer grows with the run: a replay driven lap after
+    /// lap closes a loop at nearly every keyframe, and solving every keyframe and every loop
+    /// each time put the back end seconds behind after a few minutes.
     pub(super) fn solve(&self) -> Vec<Sim3> {
         let n = self.keyframes.len();
-        let values: Vec<Sim3> = self.keyframes.iter().map(|k| k.opt).collect();
-        let mut graph = PoseGraph::<Sim3, 7>::new((0..n).collect(), values);
+        let start = self.free_from();
         let info = |rot: f64, trans: f64, scale: f64| {
             let v = [rot, rot, rot, trans, trans, trans, scale];
             nalgebra::SMatrix::<f64, 7, 7>::from_diagonal(&SVector::<f64, 7>::from_fn(|r, _| {
                 1.0 / (v[r] * v[r])
             }))
         };
-        for k in 1..n {
+        // the factors that touch a free keyframe: odometry into each, the loops
+        let mut odometry = Vec::new();
+        for k in start.max(1)..n {
             let z = self.keyframes[k - 1]
                 .odom
                 .inverse()
@@ -42,20 +62,51 @@ impl LoopCloser {
             } else {
                 (0.002, 0.02 * step, 0.005)
             };
-            if let Ok(f) = Between::new(k - 1, k, z, &info(sigmas.0, sigmas.1, sigmas.2)) {
+            odometry.push((k - 1, k, z, info(sigmas.0, sigmas.1, sigmas.2)));
+        }
+        let loops: Vec<_> = self
+            .loops
+            .iter()
+            .filter(|(i, j, _, _)| *i >= start || *j >= start)
+            .map(|(i, j, rel, _)| {
+                let step = rel.t.norm().max(1e-1);
+                (*i, *j, *rel, info(0.01, 0.05 * step, 0.02))
+            })
+            .collect();
+        // variables: the free keyframes, then the held ones the factors reach
+        let mut keys: Vec<usize> = (start..n).collect();
+        let mut held: Vec<usize> = odometry
+            .iter()
+            .chain(&loops)
+            .flat_map(|f| [f.0, f.1])
+            .filter(|&k| k < start)
+            .collect();
+        held.sort_unstable();
+        held.dedup();
+        keys.extend(&held);
+        let slot: std::collections::HashMap<usize, usize> =
+            keys.iter().enumerate().map(|(s, &k)| (k, s)).collect();
+        let values: Vec<Sim3> = keys.iter().map(|&k| self.keyframes[k].opt).collect();
+        let mut graph = PoseGraph::<Sim3, 7>::new((0..keys.len()).collect(), values);
+        for (i, j, z, inf) in &odometry {
+            if let Ok(f) = Between::new(slot[i], slot[j], *z, inf) {
                 graph.between.push(f);
             }
         }
         let first_loop = graph.between.len();
-        for (i, j, rel, _) in &self.loops {
-            let step = rel.t.norm().max(1e-1);
-            if let Ok(f) = Between::new(*i, *j, *rel, &info(0.01, 0.05 * step, 0.02)) {
+        for (i, j, rel, inf) in &loops {
+            if let Ok(f) = Between::new(slot[i], slot[j], *rel, inf) {
                 graph.between.push(f);
             }
         }
-        graph
-            .priors
-            .push(Prior::with_variances(0, self.keyframes[0].opt, &[1e-8; 7]));
+        // the first keyframe anchors the world; held keyframes stay where they are
+        for &k in std::iter::once(&0).filter(|_| start == 0).chain(&held) {
+            graph.priors.push(Prior::with_variances(
+                slot[&k],
+                self.keyframes[k].opt,
+                &[1e-8; 7],
+            ));
+        }
         // Least squares first: from the odometry guess a true loop's residual is as large as
         // the drift, and a robust kernel would discard it. Then Cauchy from that solution, so
         // a loop that disagrees with the others loses its weight.
@@ -71,17 +122,19 @@ impl LoopCloser {
             let summary = lm.optimize();
             tracing::debug!(
                 stage,
+                free = n - start,
+                held = held.len(),
                 initial = summary.initial_error,
                 last = summary.final_error,
                 iterations = summary.iterations,
                 "loop pose graph"
             );
         }
-        graph
-            .values
-            .iter()
-            .map(Sim3::with_nearest_rotation)
-            .collect()
+        let mut solved: Vec<Sim3> = self.keyframes.iter().map(|k| k.opt).collect();
+        for (s, &k) in keys.iter().enumerate().take(n - start) {
+            solved[k] = graph.values[s].with_nearest_rotation();
+        }
+        solved
     }
 }
 
