@@ -119,6 +119,10 @@ pub struct Correction {
 /// baseline is taken).
 const TRIANGULATION_KEYFRAMES: usize = 4;
 
+/// The longest run of unverified keyframes between two revisits of one stretch that counts
+/// as revisited too (see `LoopCloser::mark_revisit`).
+const REVISIT_GAP: usize = 8;
+
 struct KeyframeEntry {
     frame: usize,
     /// Pose in the odometry frame (the tracker's frame with all corrections undone).
@@ -135,8 +139,8 @@ struct KeyframeEntry {
     /// may have started a new map, whose placement and scale the odometry does not tie to
     /// the old one).
     after_gap: bool,
-    /// Its place was verified against an earlier keyframe's (see `LoopConfig::cull_revisits`).
-    revisit: bool,
+    /// The earlier keyframe whose place it revisits (see `LoopConfig::cull_revisits`).
+    revisit: Option<usize>,
     /// Its place-recognition data was freed: never a candidate again.
     culled: bool,
 }
@@ -336,7 +340,7 @@ impl LoopCloser {
             points: Vec::new(),
             vlad: None,
             after_gap: std::mem::take(&mut self.gap) && index > 0,
-            revisit: false,
+            revisit: None,
             culled: false,
         });
         self.frames.push((frame, odom, index, *t_world_cam));
@@ -357,16 +361,37 @@ impl LoopCloser {
         if !self.cfg.cull_revisits {
             return;
         }
-        let Some(k) = newest.checked_sub(TRIANGULATION_KEYFRAMES) else {
+        let Some(last) = newest.checked_sub(TRIANGULATION_KEYFRAMES) else {
             return;
         };
-        let kf = &mut self.keyframes[k];
-        if kf.revisit && !kf.culled {
-            kf.culled = true;
-            kf.keypoints = Vec::new();
-            kf.desc = DMatrix::zeros(0, 0);
-            kf.points = Vec::new();
-            kf.vlad = None;
+        for kf in &mut self.keyframes[last.saturating_sub(REVISIT_GAP)..=last] {
+            if kf.revisit.is_some() && !kf.culled {
+                kf.culled = true;
+                kf.keypoints = Vec::new();
+                kf.desc = DMatrix::zeros(0, 0);
+                kf.points = Vec::new();
+                kf.vlad = None;
+            }
+        }
+    }
+
+    /// Marks keyframe `j` a revisit of `place`, and with it the keyframes since the last
+    /// revisit when that one was at most `REVISIT_GAP` keyframes before and revisited the
+    /// same stretch of the past: a keyframe driven between two revisits of one stretch is
+    /// there too, though its own verification failed (a turn, motion blur).
+    fn mark_revisit(&mut self, j: usize, place: usize) {
+        self.keyframes[j].revisit = Some(place);
+        let before = j.saturating_sub(REVISIT_GAP + 1)..j;
+        let Some((r, earlier)) = before
+            .rev()
+            .find_map(|k| self.keyframes[k].revisit.map(|p| (k, p)))
+        else {
+            return;
+        };
+        if earlier.abs_diff(place) <= 6 + 2 * (j - r) {
+            for kf in &mut self.keyframes[r + 1..j] {
+                kf.revisit.get_or_insert(place);
+            }
         }
     }
 
@@ -400,7 +425,7 @@ impl LoopCloser {
             self.pending.clear();
             return None;
         };
-        self.keyframes[j].revisit = true;
+        self.mark_revisit(j, det.matched);
         tracing::debug!(
             query = self.keyframes[j].frame,
             matched = self.keyframes[det.matched].frame,
@@ -594,7 +619,7 @@ mod tests {
             cull_revisits,
             ..LoopConfig::default()
         };
-        let mut closer = LoopCloser::new(ring.calib.clone(), cfg);
+        let mut closer = LoopCloser::new(ring.calib, cfg);
         for k in 0..(laps * KEYFRAMES_PER_LAP as f64) as usize {
             let t_world_cam = Ring::pose(k);
             if let Some(c) = closer.add_keyframe(k, &t_world_cam, &ring.features(k)) {
@@ -655,7 +680,7 @@ mod tests {
             pose_graph_margin: margin,
             ..LoopConfig::default()
         };
-        let mut closer = LoopCloser::new(ring.calib.clone(), cfg);
+        let mut closer = LoopCloser::new(ring.calib, cfg);
         let mut later = 0;
         for k in 0..laps * KEYFRAMES_PER_LAP {
             let pose = Ring::drifting_pose(k, 5e-4);
