@@ -10,12 +10,20 @@ use supermvo_optim::lie::{LieGroup, Sim3};
 
 impl LoopCloser {
     /// Triangulates keyframe `k`'s keypoints against the earlier keyframe (of the last
-    /// `TRIANGULATION_KEYFRAMES`)
-    /// with the widest baseline, using the odometry between them.
+    /// `TRIANGULATION_KEYFRAMES`, of the same map: none before a frame tracking failed on,
+    /// where the odometry between them is a guess) with the widest baseline, using the
+    /// odometry between them.
     pub(super) fn triangulate(&mut self, k: usize) {
         let cur = &self.keyframes[k];
         let mut points = vec![None; cur.keypoints.len()];
-        let best = (k.saturating_sub(super::TRIANGULATION_KEYFRAMES)..k).max_by(|&a, &b| {
+        let map_start = (k.saturating_sub(super::TRIANGULATION_KEYFRAMES)..=k)
+            .rev()
+            .find(|&m| self.keyframes[m].after_gap)
+            .unwrap_or(0);
+        let first = k
+            .saturating_sub(super::TRIANGULATION_KEYFRAMES)
+            .max(map_start);
+        let best = (first..k).max_by(|&a, &b| {
             let da = (self.keyframes[a].odom.t - cur.odom.t).norm();
             let db = (self.keyframes[b].odom.t - cur.odom.t).norm();
             da.total_cmp(&db)
