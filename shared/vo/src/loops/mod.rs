@@ -145,6 +145,15 @@ struct KeyframeEntry {
     culled: bool,
 }
 
+impl KeyframeEntry {
+    /// Frees what verification needs (keypoints, descriptors, points).
+    fn release_features(&mut self) {
+        self.keypoints = Vec::new();
+        self.desc = DMatrix::zeros(0, 0);
+        self.points = Vec::new();
+    }
+}
+
 /// A recognised but not yet confirmed place.
 #[derive(Debug, Clone, Copy)]
 struct Detection {
@@ -180,7 +189,7 @@ pub struct LoopCloser {
     /// The newest keyframe that a solved loop tied to the map: the keyframes before it are
     /// consistent with the map, and a later solve leaves them (all but a margin) held.
     tied: Option<usize>,
-    /// Pose-graph solves so far, and the keyframes free in the last (for tests and logs).
+    /// Pose-graph solves so far, and the keyframes free in the last (read by the tests).
     solves: usize,
     free_in_last_solve: usize,
 }
@@ -371,18 +380,16 @@ impl LoopCloser {
             if kf.culled {
                 continue;
             }
-            // a revisit leaves place recognition whole; a keyframe with too few points, which
-            // can never pass a candidate's verification, keeps its VLAD vector, so that
-            // candidates are ranked as before
             if kf.revisit.is_some() {
+                // a revisit leaves place recognition whole
                 kf.culled = true;
                 kf.vlad = None;
-            } else if kf.points.iter().flatten().count() >= min_points {
-                continue;
+                kf.release_features();
+            } else if kf.desc.nrows() > 0 && kf.points.iter().flatten().count() < min_points {
+                // it can never pass a candidate's verification; its VLAD vector stays, so
+                // that candidates are ranked as before
+                kf.release_features();
             }
-            kf.keypoints = Vec::new();
-            kf.desc = DMatrix::zeros(0, 0);
-            kf.points = Vec::new();
         }
     }
 
@@ -521,20 +528,20 @@ impl LoopCloser {
 }
 
 #[cfg(test)]
-mod tests_support {
+mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)] // test code
-    pub(super) use super::*;
+    use super::*;
     use supermvo_geometry::Mat3;
 
     /// A ring road of radius 60 m with 1500 points beside it, each with its own random
     /// descriptor (64 values); a keyframe every 3 m (126 a lap) sees the points ahead of it.
-    pub(super) struct Ring {
+    struct Ring {
         points: Vec<(Vec3, Vec<f32>)>,
-        pub(super) calib: Calibration,
+        calib: Calibration,
     }
 
     const RADIUS: f64 = 60.0;
-    pub(super) const KEYFRAMES_PER_LAP: usize = 126;
+    const KEYFRAMES_PER_LAP: usize = 126;
 
     /// A deterministic generator of values in [-1, 1).
     fn lcg(state: &mut u64) -> f64 {
@@ -545,7 +552,7 @@ mod tests_support {
     }
 
     impl Ring {
-        pub(super) fn new() -> Self {
+        fn new() -> Self {
             let mut s = 7u64;
             let points = (0..1500)
                 .map(|_| {
@@ -567,7 +574,7 @@ mod tests_support {
         }
 
         /// `T_world_cam` of keyframe `k`, driving anticlockwise seen from above (-y).
-        pub(super) fn pose(k: usize) -> Pose {
+        fn pose(k: usize) -> Pose {
             let a = 3.0 * k as f64 / RADIUS;
             let (s, c) = a.sin_cos();
             let r = Mat3::from_columns(&[
@@ -580,7 +587,7 @@ mod tests_support {
 
         /// `T_world_cam` of keyframe `k` as an odometry with a scale drift reports it: each
         /// step `1 + drift * k` times its true length.
-        pub(super) fn drifting_pose(k: usize, drift: f64) -> Pose {
+        fn drifting_pose(k: usize, drift: f64) -> Pose {
             let mut c = Self::pose(0).t;
             for i in 1..=k {
                 c += (Self::pose(i).t - Self::pose(i - 1).t) * (1.0 + drift * i as f64);
@@ -590,7 +597,7 @@ mod tests_support {
 
         /// What keyframe `k` sees: the points within 40 m in front of it, in the image, with
         /// 0.3 px of keypoint noise and a little descriptor noise.
-        pub(super) fn features(&self, k: usize) -> Features {
+        fn features(&self, k: usize) -> Features {
             let t_world_cam = Self::pose(k);
             let mut s = 1000 + k as u64;
             let (mut keypoints, mut descriptors) = (Vec::new(), Vec::new());
@@ -616,12 +623,6 @@ mod tests_support {
             }
         }
     }
-}
-
-#[cfg(test)]
-mod tests {
-    #![allow(clippy::unwrap_used, clippy::expect_used)] // test code
-    use super::tests_support::*;
 
     /// Drives the ring `laps` times with exact odometry; returns the loop closer.
     fn drive(laps: f64, cull_revisits: bool) -> LoopCloser {
