@@ -85,7 +85,7 @@ pub fn write_trajectories(out: &Path, frames: &[(f64, Option<Pose>)]) -> Result<
 /// loops were closed), then the trajectory files.
 fn finish(out: &Path, rec: &mut Recorder, loops: Option<&LoopClosing>) -> Result<()> {
     if let Some(l) = loops.filter(|l| !l.loops().is_empty()) {
-        for (seq, p) in l.corrected() {
+        for (seq, p) in l.corrected(&read_lines(&rec.path)?) {
             rec.correct(seq, p)?;
         }
         let path = out.join("loops.json");

@@ -17,7 +17,7 @@ use supermvo_dataset::Calibration;
 use supermvo_geometry::Pose;
 use supermvo_inference::Features;
 use supermvo_messages::{BackendState, CorrectionMsg, FeatureLayout, FrameHeader, PoseMsg, Status};
-use supermvo_vo::loops::{Correction, LoopCloser, LoopConfig, LoopEdge};
+use supermvo_vo::loops::{Correction, LoopCloser, LoopConfig, LoopEdge, ReportedPose};
 
 /// Name of the keyframe log in the output folder.
 pub const KEYFRAMES_FILE: &str = "keyframes.bin";
@@ -72,13 +72,7 @@ impl LoopClosing {
             last_verdict: None,
             restored_keyframes: 0,
         };
-        for (i, r) in lines.iter().enumerate().filter(|(_, r)| !is_late_pose(r)) {
-            let backfilled: Vec<(u64, [f64; 12])> = lines[i + 1..]
-                .iter()
-                .take_while(|l| is_late_pose(l))
-                .filter(|l| l.status == BACKFILLED)
-                .filter_map(|l| l.pose.map(|p| (l.seq, p)))
-                .collect();
+        for (r, backfilled) in frames_with_backfills(lines) {
             let frame = PosedFrame {
                 seq: r.seq,
                 pose: r.pose,
@@ -116,11 +110,6 @@ impl LoopClosing {
     /// Feeds one recorded frame to the loop closer; for a posed keyframe returns the verdict
     /// to send to tracking (`features` missing: the keyframe only extends the trajectory).
     pub fn add(&mut self, frame: PosedFrame, features: Option<&Features>) -> Option<CorrectionMsg> {
-        for (seq, p) in frame.backfilled {
-            let p = Pose::from_row_major_3x4(p);
-            self.closer
-                .add_frame_at(*seq as usize, &p, frame.corrections as usize);
-        }
         if frame.lost {
             self.closer.add_lost_frame();
         }
@@ -129,7 +118,6 @@ impl LoopClosing {
         let correction = match features.filter(|_| frame.keyframe) {
             Some(f) => self.closer.add_keyframe_at(seq, &pose, f, applied),
             None => {
-                self.closer.add_frame_at(seq, &pose, applied);
                 if !frame.keyframe {
                     return None;
                 }
@@ -185,22 +173,53 @@ impl LoopClosing {
     }
 
     /// Loops accepted so far.
-    pub fn loops(&self) -> Vec<LoopEdge> {
+    pub fn loops(&self) -> &[LoopEdge] {
         self.closer.loops()
     }
 
-    /// The loop-corrected pose of every frame the loop closer has seen, by sequence number;
-    /// empty while no loop was closed.
-    pub fn corrected(&self) -> Vec<(u64, [f64; 12])> {
+    /// The loop-corrected pose of every posed frame of `lines` (`frames.csv` in the order
+    /// written), by sequence number; empty while no loop was closed.
+    pub fn corrected(&self, lines: &[Record]) -> Vec<(u64, [f64; 12])> {
         if self.closer.loops().is_empty() {
             return Vec::new();
         }
+        let reported = frames_with_backfills(lines).flat_map(|(r, backfilled)| {
+            let corrections = r.corrections as usize;
+            backfilled
+                .into_iter()
+                .chain(r.pose.map(|p| (r.seq, p)))
+                .map(move |(seq, p)| ReportedPose {
+                    frame: seq as usize,
+                    t_world_cam: Pose::from_row_major_3x4(&p),
+                    corrections,
+                })
+        });
         self.closer
-            .trajectory()
+            .trajectory(reported)
             .into_iter()
             .map(|(seq, p)| (seq as u64, p.to_row_major_3x4()))
             .collect()
     }
+}
+
+/// Each frame's own line of `frames.csv` (in the order written) with the poses that the
+/// [`BACKFILLED`] lines after it gave earlier frames: `(seq, T_world_cam)`.
+fn frames_with_backfills(
+    lines: &[Record],
+) -> impl Iterator<Item = (&Record, Vec<(u64, [f64; 12])>)> {
+    lines
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| !is_late_pose(r))
+        .map(|(i, r)| {
+            let backfilled = lines[i + 1..]
+                .iter()
+                .take_while(|l| is_late_pose(l))
+                .filter(|l| l.status == BACKFILLED)
+                .filter_map(|l| l.pose.map(|p| (l.seq, p)))
+                .collect();
+            (r, backfilled)
+        })
 }
 
 /// `keyframes.bin`: each keyframe's features as one record, appended and flushed: `seq`

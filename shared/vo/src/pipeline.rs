@@ -62,24 +62,19 @@ impl VoPipeline {
 }
 
 /// Hands one tracked frame to the loop closer and applies the correction it returns to the
-/// tracker before the next frame (the daemon's lossless hand-off reproduces this order).
+/// tracker before the next frame (the daemon's lossless hand-off reproduces this order). The
+/// loop closer takes keyframes and lost frames; the caller keeps every frame's pose (with
+/// the corrections applied when it was reported, [`crate::loops::LoopCloser::corrections`]
+/// before the frame) for [`crate::loops::LoopCloser::trajectory`].
 pub fn close_loops(
     loops: &mut crate::loops::LoopCloser,
     tracker: &mut Tracker,
     out: &FrameOutput,
 ) -> Option<crate::loops::Correction> {
-    for late in &out.backfilled {
-        // frames posed by this one's initialisation belong before it, with the reference
-        loops.add_frame(late.index, &late.t_world_cam);
-    }
     if out.state == crate::tracker::TrackingState::Lost {
         loops.add_lost_frame();
     }
-    let pose = out.t_world_cam?;
-    if !out.keyframe {
-        loops.add_frame(out.index, &pose);
-        return None;
-    }
+    let pose = out.t_world_cam.filter(|_| out.keyframe)?;
     let (_, features) = tracker.reference()?;
     let correction = loops.add_keyframe(out.index, &pose, features)?;
     tracker.apply_correction(&correction.sim3);

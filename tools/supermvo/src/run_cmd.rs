@@ -13,7 +13,7 @@ use supermvo_geometry::{AlignmentKind, Pose};
 use supermvo_pipeline::backend::{read_records, write_trajectories};
 use supermvo_pipeline::supervisor::{default_bin_dir, SupervisorOptions};
 use supermvo_pipeline::{features, matching, tracking};
-use supermvo_vo::loops::{LoopCloser, LoopConfig};
+use supermvo_vo::loops::{LoopCloser, LoopConfig, ReportedPose};
 use supermvo_vo::pipeline::VoPipeline;
 use supermvo_vo::stage::Timed;
 use supermvo_vo::tracker::{FrameInput, Tracker, TrackingState};
@@ -410,6 +410,8 @@ fn run_inprocess(
     let first = seq.load_frame(0)?;
     let bar = progress_bar(args.quiet, n);
     let mut outputs = Vec::with_capacity(n);
+    // every pose as reported, with the loop corrections applied when it was
+    let mut reported = Vec::with_capacity(n);
     // Ctrl-C (or SIGTERM) ends the loop after the frame in hand; what was estimated is
     // written as after a complete run
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
@@ -443,20 +445,25 @@ fn run_inprocess(
         let recorded_image = recording
             .as_ref()
             .map(|_| seq.pinhole_view(&image).unwrap_or_else(|| image.clone()));
+        let applied = vo.inner().loop_closer().map_or(0, |c| c.corrections());
         let out = vo.call(FrameInput {
             index: i,
             stamp: seq.times[i],
             image,
         })?;
+        reported.extend(out.poses().map(|(frame, t_world_cam)| ReportedPose {
+            frame,
+            t_world_cam,
+            corrections: applied,
+        }));
         if let Some(r) = recording.as_mut() {
             let view = vo.inner_mut().take_view();
             let ms = vo.durations_ms().last().copied().unwrap_or(f64::NAN);
             let loops = vo
                 .inner()
                 .loop_closer()
-                .map(|c| c.loops())
-                .unwrap_or_default();
-            r.frame(&out, recorded_image.as_ref(), view.as_ref(), ms, &loops);
+                .map_or(&[][..], |c| c.loops());
+            r.frame(&out, recorded_image.as_ref(), view.as_ref(), ms, loops);
         }
         bar.set_message(format!("{:?}, {} landmarks", out.state, out.landmarks));
         bar.inc(1);
@@ -469,10 +476,10 @@ fn run_inprocess(
     let closer = vo.inner().loop_closer();
     // every frame's pose (moved by the loop corrections when loops are closed), by index
     let posed: std::collections::BTreeMap<usize, supermvo_geometry::Pose> = match closer {
-        Some(c) => c.trajectory().into_iter().collect(),
+        Some(c) => c.trajectory(reported).into_iter().collect(),
         None => outputs.iter().flat_map(|o| o.poses()).collect(),
     };
-    let loops = closer.map(|c| c.loops()).unwrap_or_default();
+    let loops = closer.map_or(&[][..], |c| c.loops());
     if let Some(reason) = closer.and_then(|c| c.disabled_reason()) {
         outln!("loop closure off: {reason}");
     } else if closer.is_some() {

@@ -170,15 +170,17 @@ pub struct LoopCloser {
     cfg: LoopConfig,
     keyframes: Vec<KeyframeEntry>,
     vocabulary: Option<DMatrix<f32>>,
-    loops: Vec<(usize, usize, Sim3, LoopEdge)>,
+    /// The loops a pose-graph solve may still free a keyframe of: (matched keyframe, query
+    /// keyframe, Sim(3) query -> matched). Loops wholly before the keyframes a solve frees
+    /// (see [`LoopCloser::solve`]) leave it, so that it does not grow with the run.
+    loops: Vec<(usize, usize, Sim3)>,
+    /// Every loop accepted, for the report.
+    edges: Vec<LoopEdge>,
     pending: Vec<Detection>,
     /// The tracker's world after `k` corrections is `fixes[k]` * the odometry frame
     /// (`fixes[0]` is the identity); a tracker that has not yet applied the latest one (the
     /// daemon's real-time mode) reports poses in an earlier world, and says which.
     fixes: Vec<Sim3>,
-    /// Every estimated frame: (frame, pose in the odometry frame, keyframe entry index, pose
-    /// as reported).
-    frames: Vec<(usize, Sim3, usize, Pose)>,
     disabled: Option<String>,
     /// Tracking failed on a frame since the last keyframe.
     gap: bool,
@@ -200,7 +202,7 @@ impl std::fmt::Debug for LoopCloser {
             f,
             "LoopCloser({} keyframes, {} loops)",
             self.keyframes.len(),
-            self.loops.len()
+            self.edges.len()
         )
     }
 }
@@ -214,9 +216,9 @@ impl LoopCloser {
             keyframes: Vec::new(),
             vocabulary: None,
             loops: Vec::new(),
+            edges: Vec::new(),
             pending: Vec::new(),
             fixes: vec![Sim3::identity()],
-            frames: Vec::new(),
             disabled: None,
             gap: false,
             last_correction: None,
@@ -228,8 +230,8 @@ impl LoopCloser {
     }
 
     /// Accepted loops so far.
-    pub fn loops(&self) -> Vec<LoopEdge> {
-        self.loops.iter().map(|l| l.3.clone()).collect()
+    pub fn loops(&self) -> &[LoopEdge] {
+        &self.edges
     }
 
     /// Why loop closure is off for this run (features without float descriptors), if it is.
@@ -273,24 +275,10 @@ impl LoopCloser {
         pose_of(&to_latest.compose(&sim3_of(t_world_cam)))
     }
 
-    /// Records a tracked non-keyframe (its pose as the tracker reported it), so that the
-    /// corrected trajectory covers every frame.
-    pub fn add_frame(&mut self, frame: usize, t_world_cam: &Pose) {
-        self.add_frame_at(frame, t_world_cam, self.corrections());
-    }
-
     /// Notes a frame tracking failed on: the next keyframe's odometry link to the one
     /// before is weak in the pose graph (see `after_gap`).
     pub fn add_lost_frame(&mut self) {
         self.gap = true;
-    }
-
-    /// [`LoopCloser::add_frame`] for a pose the tracker reported after `applied` corrections.
-    pub fn add_frame_at(&mut self, frame: usize, t_world_cam: &Pose, applied: usize) {
-        if let Some(k) = self.keyframes.len().checked_sub(1) {
-            let odom = self.fix(applied).inverse().compose(&sim3_of(t_world_cam));
-            self.frames.push((frame, odom, k, *t_world_cam));
-        }
     }
 
     /// Adds a keyframe (its pose as the tracker reported it, and its features). When a loop
@@ -352,7 +340,6 @@ impl LoopCloser {
             revisit: None,
             culled: false,
         });
-        self.frames.push((frame, odom, index, *t_world_cam));
         if self.disabled.is_some() {
             return None;
         }
@@ -480,7 +467,8 @@ impl LoopCloser {
                 places = self.places(),
                 "loop closed"
             );
-            self.loops.push((d.matched, d.keyframe, d.rel, edge));
+            self.loops.push((d.matched, d.keyframe, d.rel));
+            self.edges.push(edge);
         }
         if self
             .last_correction
@@ -504,27 +492,53 @@ impl LoopCloser {
         })
     }
 
-    /// The corrected pose `T_world_cam` of every frame recorded so far, in frame order: each
-    /// frame moves with its keyframe, by the pose graph over every loop accepted (solved again
-    /// when loops came after the last correction). Until a loop is closed these are the poses
-    /// as reported.
-    pub fn trajectory(&self) -> Vec<(usize, Pose)> {
-        if self.loops.is_empty() {
-            return self.frames.iter().map(|f| (f.0, f.3)).collect();
-        }
-        let opt: Vec<Sim3> = match self.unsolved_loops {
-            true => self.solve(),
-            false => self.keyframes.iter().map(|k| k.opt).collect(),
+    /// The corrected pose `T_world_cam` of each reported pose that has a keyframe at or
+    /// before its frame, in the order given: each frame moves with the latest such keyframe,
+    /// by the pose graph over every loop accepted (solved again when loops came after the
+    /// last correction). Until a loop is closed these are the poses as reported. The loop
+    /// closer keeps no record per frame (the caller has them: the daemon in `frames.csv`),
+    /// so its memory grows only with the keyframes.
+    pub fn trajectory(
+        &self,
+        reported: impl IntoIterator<Item = ReportedPose>,
+    ) -> Vec<(usize, Pose)> {
+        let opt: Vec<Sim3> = match (self.edges.is_empty(), self.unsolved_loops) {
+            (true, _) => Vec::new(),
+            (false, true) => self.solve(),
+            (false, false) => self.keyframes.iter().map(|k| k.opt).collect(),
         };
-        self.frames
-            .iter()
-            .map(|(frame, odom, k, _)| {
-                let kf = &self.keyframes[*k];
-                let corrected = opt[*k].compose(&kf.odom.inverse()).compose(odom);
-                (*frame, pose_of(&corrected))
+        reported
+            .into_iter()
+            .filter_map(|r| {
+                let k = self
+                    .keyframes
+                    .partition_point(|kf| kf.frame <= r.frame)
+                    .checked_sub(1)?;
+                if opt.is_empty() {
+                    return Some((r.frame, r.t_world_cam));
+                }
+                let odom = self
+                    .fix(r.corrections)
+                    .inverse()
+                    .compose(&sim3_of(&r.t_world_cam));
+                let corrected = opt[k]
+                    .compose(&self.keyframes[k].odom.inverse())
+                    .compose(&odom);
+                Some((r.frame, pose_of(&corrected)))
             })
             .collect()
     }
+}
+
+/// A pose as the tracker reported it, for [`LoopCloser::trajectory`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReportedPose {
+    /// Frame index.
+    pub frame: usize,
+    /// `T_world_cam` as reported.
+    pub t_world_cam: Pose,
+    /// Loop corrections the tracker had applied when it reported it.
+    pub corrections: usize,
 }
 
 #[cfg(test)]
@@ -682,6 +696,9 @@ mod tests {
         );
     }
 
+    /// The odometry's scale drift per keyframe in [`drive_drifting`].
+    const SCALE_DRIFT: f64 = 5e-4;
+
     /// Drives the ring `laps` times with an odometry whose scale drifts by 0.05 % more each
     /// keyframe (reported without the corrections, as the daemon's real-time tracker may);
     /// returns the loop closer and the largest number of keyframes free in a solve after
@@ -695,7 +712,7 @@ mod tests {
         let mut closer = LoopCloser::new(ring.calib, cfg);
         let mut later = 0;
         for k in 0..laps * KEYFRAMES_PER_LAP {
-            let pose = Ring::drifting_pose(k, 5e-4);
+            let pose = Ring::drifting_pose(k, SCALE_DRIFT);
             let solved_before = closer.solves;
             closer.add_keyframe_at(k, &pose, &ring.features(k), 0);
             if closer.solves > solved_before && solved_before > 0 {
@@ -705,9 +722,15 @@ mod tests {
         (closer, later)
     }
 
-    /// Position RMSE (m) of keyframes `from..` of the corrected trajectory against the ring.
+    /// Position RMSE (m) of keyframes `from..` of the corrected trajectory of
+    /// [`drive_drifting`] against the ring.
     fn rmse_from(closer: &LoopCloser, from: usize) -> f64 {
-        let t = closer.trajectory();
+        let reported = (0..closer.keyframes.len()).map(|k| ReportedPose {
+            frame: k,
+            t_world_cam: Ring::drifting_pose(k, SCALE_DRIFT),
+            corrections: 0,
+        });
+        let t = closer.trajectory(reported);
         let sq: Vec<f64> = t[from..]
             .iter()
             .map(|(k, p)| (p.t - Ring::pose(*k).t).norm_squared())

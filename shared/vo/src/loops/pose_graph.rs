@@ -19,7 +19,10 @@ impl LoopCloser {
             k.opt = v;
         }
         self.unsolved_loops = false;
-        self.tied = self.loops.iter().map(|l| l.1).max();
+        self.tied = self.loops.iter().map(|l| l.1).max().max(self.tied);
+        // a loop wholly before the keyframes free from now on joins no later solve
+        let start = self.free_from();
+        self.loops.retain(|&(i, j, _)| i >= start || j >= start);
     }
 
     /// The first keyframe free in a solve (see [`LoopCloser::solve`]).
@@ -67,8 +70,8 @@ impl LoopCloser {
         let loops: Vec<_> = self
             .loops
             .iter()
-            .filter(|(i, j, _, _)| *i >= start || *j >= start)
-            .map(|(i, j, rel, _)| {
+            .filter(|(i, j, _)| *i >= start || *j >= start)
+            .map(|(i, j, rel)| {
                 let step = rel.t.norm().max(1e-1);
                 (*i, *j, *rel, info(0.01, 0.05 * step, 0.02))
             })
