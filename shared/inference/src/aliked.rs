@@ -8,7 +8,7 @@
 //! score is not above the detection threshold are dropped (ALIKED's threshold mode, as
 //! LightGlue uses it: at most `top_k` keypoints scoring above 0.2).
 
-use crate::runtime::{open_session_on, Arena, Device};
+use crate::runtime::{open_session_on, Device};
 use crate::{Extractor, Features, GrayImage, InferenceError};
 use std::path::Path;
 
@@ -58,7 +58,7 @@ impl Aliked {
         let (session, _) = open_session_on(
             model,
             "aliked",
-            (cfg.threads, cfg.spin, Arena::On),
+            (cfg.threads, cfg.spin),
             cfg.device,
             &INPUTS,
             &OUTPUTS,

@@ -9,7 +9,7 @@
 //! stopping), and return `kept0`/`kept1`, the original indices of the rows and columns that
 //! survived pruning (matches are mapped back through them), and `layers`, how many ran.
 
-use crate::runtime::{open_session_on, Arena, Device};
+use crate::runtime::{open_session_on, Device};
 use crate::{Features, InferenceError, Matcher, Matches};
 use std::path::Path;
 
@@ -151,7 +151,7 @@ impl LightGlue {
         let (session, device) = open_session_on(
             model,
             name,
-            (cfg.threads, cfg.spin, Arena::Off),
+            (cfg.threads, cfg.spin),
             cfg.device,
             &INPUTS,
             &OUTPUTS,

@@ -122,15 +122,7 @@ pub fn open_session(
     inputs: &[&str],
     outputs: &[&str],
 ) -> Result<ort::session::Session, InferenceError> {
-    open_session_on(
-        path,
-        name,
-        (threads, false, Arena::On),
-        Device::Cpu,
-        inputs,
-        outputs,
-    )
-    .map(|(s, _)| s)
+    open_session_on(path, name, (threads, false), Device::Cpu, inputs, outputs).map(|(s, _)| s)
 }
 
 /// Registers the CUDA execution provider on `builder`, or says why it cannot be used.
@@ -171,26 +163,10 @@ fn loaded_library() -> PathBuf {
     }
 }
 
-/// Whether a session on the CPU keeps ONNX Runtime's memory arena.
-///
-/// The arena keeps the largest blocks a call needed and grows (by doubling, in steps) when
-/// a call needs more: right for a network whose inputs keep one shape (an extractor on
-/// frames of one size), but a matcher's inputs change shape with every pair's keypoint
-/// counts, and its arena grew in one step of 6 MB after 200 s of a 10-minute soak. Without
-/// the arena a matcher allocates each call's tensors and frees them after it: 1.01x the
-/// time per frame in process on KITTI 03 (three alternating rounds, 2026-12-05).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Arena {
-    /// ONNX Runtime's default arena.
-    On,
-    /// Every tensor allocated for the call and freed after it.
-    Off,
-}
-
 /// Opens an ONNX model on `device` (CUDA falls back to the CPU, with a warning naming the
 /// reason, where it cannot be used) with `threads` intra-op threads that spin between calls
-/// when `spin` is set and the CPU memory `arena` chosen, checking its input and output
-/// names. Returns the session and the device it runs on.
+/// when `spin` is set, checking its input and output names. Returns the session and the
+/// device it runs on.
 ///
 /// Spinning keeps a session's threads busy-waiting for a while after each call. Where two
 /// networks alternate on the same cores (extraction then matching, in one process or in two
@@ -199,7 +175,7 @@ pub enum Arena {
 pub fn open_session_on(
     path: &Path,
     name: &str,
-    (threads, spin, arena): (usize, bool, Arena),
+    (threads, spin): (usize, bool),
     device: Device,
     inputs: &[&str],
     outputs: &[&str],
@@ -242,13 +218,6 @@ pub fn open_session_on(
         // x86; flushing them to zero halved LighterGlue's time with the same matches.
         .with_flush_to_zero()
         .map_err(|e| corrupt(e.into()))?;
-    // (on CUDA the CPU provider must not be registered first: it would take every node)
-    let builder = match (arena, device) {
-        (Arena::On, _) | (_, Device::Cuda) => builder,
-        (Arena::Off, Device::Cpu) => builder
-            .with_execution_providers([ort::ep::CPU::default().with_arena_allocator(false).build()])
-            .map_err(|e| corrupt(e.into()))?,
-    };
     let (mut builder, used) = match device {
         Device::Cpu => (builder, Device::Cpu),
         Device::Cuda => match with_cuda(builder) {

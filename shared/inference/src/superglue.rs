@@ -6,7 +6,7 @@
 //! (SuperGlue's `match_threshold`, 0.2), selected as for LightGlue.
 
 use crate::lighterglue::filter_matches;
-use crate::runtime::{open_session_on, Arena, Device};
+use crate::runtime::{open_session_on, Device};
 use crate::{Features, InferenceError, Matcher, Matches};
 use std::path::Path;
 
@@ -63,7 +63,7 @@ impl SuperGlue {
         let (session, _) = open_session_on(
             model,
             "superglue",
-            (cfg.threads, cfg.spin, Arena::Off),
+            (cfg.threads, cfg.spin),
             cfg.device,
             &INPUTS,
             &OUTPUTS,

@@ -8,7 +8,7 @@
 //! threshold, `border` pixels removed, the `top_k` strongest kept, and descriptors sampled
 //! bilinearly from the coarse map at each keypoint and L2-normalised.
 
-use crate::runtime::{open_session_on, Arena, Device};
+use crate::runtime::{open_session_on, Device};
 use crate::xfeat::resize_bilinear;
 use crate::{Extractor, Features, GrayImage, InferenceError};
 use std::path::Path;
@@ -65,7 +65,7 @@ impl SuperPoint {
         let (session, _) = open_session_on(
             model,
             "superpoint",
-            (cfg.threads, cfg.spin, Arena::On),
+            (cfg.threads, cfg.spin),
             cfg.device,
             &INPUTS,
             &OUTPUTS,

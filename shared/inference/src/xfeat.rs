@@ -17,7 +17,7 @@
 //! Scores and descriptors stay those of the integer position, so only the coordinates
 //! change.
 
-use crate::runtime::{open_session_on, Arena, Device};
+use crate::runtime::{open_session_on, Device};
 use crate::{Extractor, Features, GrayImage, InferenceError};
 use std::path::Path;
 
@@ -91,7 +91,7 @@ impl XFeat {
         let (session, device) = open_session_on(
             model,
             "xfeat",
-            (cfg.threads, cfg.spin, Arena::On),
+            (cfg.threads, cfg.spin),
             cfg.device,
             &INPUTS,
             &OUTPUTS,
