@@ -168,6 +168,10 @@ impl<M: Matcher> Matcher for Cached<M> {
         store(&path, &encode_matches(&m));
         Ok(m)
     }
+
+    fn warm_up(&mut self, a: &Features, b: &Features) -> Result<(), InferenceError> {
+        self.inner.warm_up(a, b)
+    }
 }
 
 #[cfg(test)]

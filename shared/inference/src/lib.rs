@@ -37,6 +37,13 @@ pub trait Extractor {
 pub trait Matcher {
     /// Matches `a` against `b`.
     fn match_features(&mut self, a: &Features, b: &Features) -> Result<Matches, InferenceError>;
+
+    /// Runs the largest computation a pair of this size can take (a network that adapts its
+    /// width and depth to the pair runs all of both), so that the first calls are not slow
+    /// and the runtime's memory reaches its working size before the first frame.
+    fn warm_up(&mut self, a: &Features, b: &Features) -> Result<(), InferenceError> {
+        self.match_features(a, b).map(|_| ())
+    }
 }
 
 impl<E: Extractor + ?Sized> Extractor for Box<E> {
@@ -48,5 +55,9 @@ impl<E: Extractor + ?Sized> Extractor for Box<E> {
 impl<M: Matcher + ?Sized> Matcher for Box<M> {
     fn match_features(&mut self, a: &Features, b: &Features) -> Result<Matches, InferenceError> {
         (**self).match_features(a, b)
+    }
+
+    fn warm_up(&mut self, a: &Features, b: &Features) -> Result<(), InferenceError> {
+        (**self).warm_up(a, b)
     }
 }

@@ -10,7 +10,7 @@
 use crate::common::{receive_features, send_slice, stamp, StageArgs, StageContext};
 use crate::inbox::Inbox;
 use anyhow::Result;
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::time::Duration;
 use supermvo_config::{Frontend, NetworkPlacement, PipelineConfig};
 use supermvo_inference::lighterglue::{LightGlue, LightGlueConfig};
@@ -80,9 +80,14 @@ fn send(p: &MatchPublisher, mut h: FrameHeader, entries: &[MatchEntry]) -> Resul
     Ok(h)
 }
 
-/// Matches two made-up keypoint sets of the configured size once before the stage reports
-/// itself up (ONNX Runtime's first call is several times slower than the next ones; in real
-/// time the first frames would be late or dropped).
+/// Matches made-up keypoint sets before the stage reports itself up: ONNX Runtime's first
+/// call is several times slower than the next ones (in real time the first frames would be
+/// late or dropped), and its memory arena grows to what the calls need. A matcher's tensors
+/// change shape with each pair's keypoint counts and with the points it prunes and the
+/// layers it runs, so the warm-up runs the largest computation at the configured size
+/// ([`Matcher::warm_up`]: LighterGlue with no point pruned and every layer run), then
+/// smaller pairs as configured, with every point matchable and with half of them not, for
+/// the arena to reach its working size before the first frame.
 fn warm_up(matcher: &mut dyn Matcher, n: usize, dim: usize) {
     let mut state = 0x2545_f491_4f6c_dd1d_u64;
     let mut next = move || {
@@ -91,23 +96,41 @@ fn warm_up(matcher: &mut dyn Matcher, n: usize, dim: usize) {
         state ^= state << 17;
         (state >> 40) as f32 / (1u64 << 24) as f32 - 0.5
     };
-    let mut descriptors: Vec<f32> = (0..n * dim).map(|_| next()).collect();
-    for d in descriptors.chunks_mut(dim.max(1)) {
-        let norm = d.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-6);
-        d.iter_mut().for_each(|v| *v /= norm);
-    }
-    let at = |shift: f32| -> Features {
+    let mut unit = |count: usize| -> Vec<f32> {
+        let mut d: Vec<f32> = (0..count * dim).map(|_| next()).collect();
+        for row in d.chunks_mut(dim.max(1)) {
+            let norm = row.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-6);
+            row.iter_mut().for_each(|v| *v /= norm);
+        }
+        d
+    };
+    let (shared, own) = (unit(n), [unit(n), unit(n)]);
+    // `count` points, the first `matchable` with descriptors both sides share
+    let features = |side: usize, count: usize, matchable: usize| -> Features {
+        let k = matchable.min(count);
+        let mut descriptors = shared[..k * dim].to_vec();
+        descriptors.extend_from_slice(&own[side][k * dim..count * dim]);
+        let shift = 3.0 * side as f32;
         Features {
-            keypoints: (0..n)
+            keypoints: (0..count)
                 .map(|i| [(i % 40) as f32 * 25.0 + shift, (i / 40) as f32 * 12.0])
                 .collect(),
-            scores: vec![1.0; n],
-            descriptors: descriptors.clone(),
+            scores: vec![1.0; count],
+            descriptors,
             dim,
             image_size: (1024, 512),
         }
     };
-    let _ = matcher.match_features(&at(0.0), &at(3.0));
+    if n == 0 {
+        return;
+    }
+    let _ = matcher.warm_up(&features(0, n, n), &features(1, n, n));
+    let sizes = [(n, n), (n, n * 3 / 4), (n * 3 / 4, n), (n / 2, n / 2)];
+    for (a, b) in sizes.into_iter().filter(|&(a, b)| a > 0 && b > 0) {
+        for matchable in [n, n / 2] {
+            let _ = matcher.match_features(&features(0, a, matchable), &features(1, b, matchable));
+        }
+    }
 }
 
 /// Runs the matching stage until SIGTERM.
@@ -131,10 +154,18 @@ pub fn run(args: &StageArgs) -> Result<()> {
 
     // after each tracked seq: the reference, and whether the next frame is matched to it
     let mut refs: BTreeMap<u64, (Option<u64>, bool)> = BTreeMap::new();
-    let drain_poses = |refs: &mut BTreeMap<u64, (Option<u64>, bool)>| -> Result<()> {
+    // frames the tracker made its reference (keyframes), which it may return to
+    let mut keyframes: BTreeSet<u64> = BTreeSet::new();
+    let drain_poses = |refs: &mut BTreeMap<u64, (Option<u64>, bool)>,
+                       keyframes: &mut BTreeSet<u64>|
+     -> Result<()> {
         while let Some(s) = poses.receive().map_err(|e| MessageError::ipc("poses", e))? {
-            let (r, wanted) = (s.payload().reference, s.payload().match_next != 0);
-            refs.insert(s.user_header().seq, ((r >= 0).then_some(r as u64), wanted));
+            let (seq, r) = (s.user_header().seq, s.payload().reference);
+            let r = (r >= 0).then_some(r as u64);
+            if r == Some(seq) {
+                keyframes.insert(seq);
+            }
+            refs.insert(seq, (r, s.payload().match_next != 0));
         }
         Ok(())
     };
@@ -146,7 +177,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
     warm_up(matcher.as_mut(), cfg.top_k, cfg.frontend.descriptor_dim());
     ctx.started();
     while ctx.wait() {
-        drain_poses(&mut refs)?;
+        drain_poses(&mut refs, &mut keyframes)?;
         while let Some(s) = requests
             .receive()
             .map_err(|e| MessageError::ipc("match requests", e))?
@@ -246,7 +277,11 @@ pub fn run(args: &StageArgs) -> Result<()> {
             if h.status() == Status::EndOfStream {
                 ctx.finished();
             }
-            // keep only what can still be a reference: the current one and later frames
+            // keep only what can still be a reference: the current one, the keyframes since,
+            // and the frame just matched (the tracker has not decided on it yet). A frame
+            // the tracker decided on without making it its reference never becomes one, so
+            // a reference held for many frames (a camera standing still while the tracker
+            // initialises) keeps one frame's features here, not all of them.
             let keep_from = refs
                 .get(&h.seq)
                 .and_then(|(r, _)| *r)
@@ -254,6 +289,8 @@ pub fn run(args: &StageArgs) -> Result<()> {
                 .unwrap_or(h.seq)
                 .min(h.seq);
             cache = cache.split_off(&keep_from);
+            cache.retain(|&seq, _| seq == keep_from || seq >= h.seq || keyframes.contains(&seq));
+            keyframes = keyframes.split_off(&keep_from);
             refs = refs.split_off(&h.seq.saturating_sub(1));
             asked = asked.split_off(&(h.seq + 1));
         }

@@ -459,10 +459,7 @@ fn run_inprocess(
         if let Some(r) = recording.as_mut() {
             let view = vo.inner_mut().take_view();
             let ms = vo.durations_ms().last().copied().unwrap_or(f64::NAN);
-            let loops = vo
-                .inner()
-                .loop_closer()
-                .map_or(&[][..], |c| c.loops());
+            let loops = vo.inner().loop_closer().map_or(&[][..], |c| c.loops());
             r.frame(&out, recorded_image.as_ref(), view.as_ref(), ms, loops);
         }
         bar.set_message(format!("{:?}, {} landmarks", out.state, out.landmarks));
