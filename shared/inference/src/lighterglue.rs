@@ -298,17 +298,14 @@ impl Matcher for LightGlue {
         Ok(matches)
     }
 
-    /// Once with no point pruned and every layer run (the largest tensors and the most of
-    /// them alive), then as configured.
+    /// With no point pruned and every layer run (the largest tensors and the most of them
+    /// alive).
     fn warm_up(&mut self, a: &Features, b: &Features) -> Result<(), InferenceError> {
-        if self.adaptive {
-            let configured = self.cfg.clone();
-            (self.cfg.width_confidence, self.cfg.depth_confidence) = (-1.0, -1.0);
-            let full = self.match_features(a, b);
-            self.cfg = configured;
-            full?;
-        }
-        self.match_features(a, b).map(|_| ())
+        let configured = self.cfg.clone();
+        (self.cfg.width_confidence, self.cfg.depth_confidence) = (-1.0, -1.0);
+        let full = self.match_features(a, b);
+        self.cfg = configured;
+        full.map(|_| ())
     }
 }
 

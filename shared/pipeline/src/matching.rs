@@ -89,6 +89,9 @@ fn send(p: &MatchPublisher, mut h: FrameHeader, entries: &[MatchEntry]) -> Resul
 /// smaller pairs as configured, with every point matchable and with half of them not, for
 /// the arena to reach its working size before the first frame.
 fn warm_up(matcher: &mut dyn Matcher, n: usize, dim: usize) {
+    if n == 0 {
+        return;
+    }
     let mut state = 0x2545_f491_4f6c_dd1d_u64;
     let mut next = move || {
         state ^= state << 13;
@@ -121,9 +124,6 @@ fn warm_up(matcher: &mut dyn Matcher, n: usize, dim: usize) {
             image_size: (1024, 512),
         }
     };
-    if n == 0 {
-        return;
-    }
     let _ = matcher.warm_up(&features(0, n, n), &features(1, n, n));
     let sizes = [(n, n), (n, n * 3 / 4), (n * 3 / 4, n), (n / 2, n / 2)];
     for (a, b) in sizes.into_iter().filter(|&(a, b)| a > 0 && b > 0) {

@@ -502,10 +502,10 @@ impl LoopCloser {
         &self,
         reported: impl IntoIterator<Item = ReportedPose>,
     ) -> Vec<(usize, Pose)> {
-        let opt: Vec<Sim3> = match (self.edges.is_empty(), self.unsolved_loops) {
-            (true, _) => Vec::new(),
-            (false, true) => self.solve(),
-            (false, false) => self.keyframes.iter().map(|k| k.opt).collect(),
+        let opt: Option<Vec<Sim3>> = match (self.edges.is_empty(), self.unsolved_loops) {
+            (true, _) => None,
+            (false, true) => Some(self.solve()),
+            (false, false) => Some(self.keyframes.iter().map(|k| k.opt).collect()),
         };
         reported
             .into_iter()
@@ -514,9 +514,9 @@ impl LoopCloser {
                     .keyframes
                     .partition_point(|kf| kf.frame <= r.frame)
                     .checked_sub(1)?;
-                if opt.is_empty() {
+                let Some(opt) = &opt else {
                     return Some((r.frame, r.t_world_cam));
-                }
+                };
                 let odom = self
                     .fix(r.corrections)
                     .inverse()
