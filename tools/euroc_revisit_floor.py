@@ -88,8 +88,9 @@ class Pair:
         self.raw1 = kp[i][[m.queryIdx for m in good]]
         self.raw2 = kp[j][[m.trainIdx for m in good]]
 
-    def solve(self, k, dist, rng=None):
-        """(RANSAC rotation, refined rotation, refined parameters, inlier normalised a, b)."""
+    def solve(self, k, dist):
+        """RANSAC rotation, refined rotation, refined parameters (rotation vector, translation
+        direction angles), the inliers' normalised points a and b, and the residual function."""
         p1 = cv2.undistortPoints(self.raw1.reshape(-1, 1, 2), k, dist, P=k).reshape(-1, 2)
         p2 = cv2.undistortPoints(self.raw2.reshape(-1, 1, 2), k, dist, P=k).reshape(-1, 2)
         e, mask = cv2.findEssentialMat(p1, p2, k, method=cv2.RANSAC, prob=0.9999, threshold=1.0)
