@@ -14,4 +14,6 @@ bash tools/python_tools.sh
 python3 tools/models/test_superpoint_superglue.py
 # ALIKED and LightGlue exports (real weights) against NumPy forward passes
 python3 tools/models/test_aliked_lightglue.py
+# the landmark depth check against a ground truth (docs/vo.md), on constructed landmarks
+python3 tools/landmark_depth_check.py --self-test
 cargo test --workspace --release "$@"

@@ -31,6 +31,8 @@ pub(crate) struct Map {
     pub(crate) next_track: usize,
     /// `T_cam_world` of every keyframe, by id (refined by the local BA).
     pub(crate) keyframe_poses: Vec<Pose>,
+    /// The frame index of every keyframe, by id.
+    keyframe_frames: Vec<usize>,
     /// Keypoints and descriptors of the most recent keyframes, by id, kept for the
     /// triangulation against later keyframes (`tracker::covisible_triangulation`; empty when
     /// it is off).
@@ -52,6 +54,7 @@ impl Map {
             tracks: BTreeMap::new(),
             next_track: 0,
             keyframe_poses: Vec::new(),
+            keyframe_frames: Vec::new(),
             keyframe_keypoints: BTreeMap::new(),
             segment_start: 0,
             focal,
@@ -59,10 +62,18 @@ impl Map {
     }
 
     /// Adds a landmark with its keyframe observations `(keyframe id, bearing)` and the
-    /// descriptor of the latest; returns its id.
-    pub(crate) fn add_landmark(&mut self, p: Vec3, obs: Vec<(usize, Vec3)>, desc: &[f32]) -> usize {
+    /// descriptor of the latest, made by `source` (`"matcher"`: the network's matches
+    /// between keyframes; `"covisible"`: epipolar pairing); returns its id.
+    pub(crate) fn add_landmark(
+        &mut self,
+        p: Vec3,
+        obs: Vec<(usize, Vec3)>,
+        desc: &[f32],
+        source: &'static str,
+    ) -> usize {
         let id = self.next_landmark;
         self.next_landmark += 1;
+        self.trace_new_landmark(&p, &obs, source);
         let desc = desc.to_vec();
         self.landmarks.insert(id, Landmark { p, obs, desc });
         id
@@ -171,10 +182,46 @@ impl Map {
         by_weight.sort_by(|a, b| b.1.cmp(&a.1).then(b.0.cmp(&a.0)));
         by_weight
     }
-    /// Registers a keyframe's `T_cam_world` and returns its id.
-    pub(crate) fn new_keyframe_id(&mut self, t_cam_world: Pose) -> usize {
+    /// Registers the `T_cam_world` of frame `frame`, a new keyframe, and returns its id.
+    pub(crate) fn new_keyframe_id(&mut self, t_cam_world: Pose, frame: usize) -> usize {
         self.keyframe_poses.push(t_cam_world);
+        self.keyframe_frames.push(frame);
         self.keyframe_poses.len() - 1
+    }
+    /// A trace event (target `supermvo::landmarks`) for each new landmark: its source, the
+    /// frames of its first and last observation with their bearings, how many keyframes
+    /// observe it, and its depth in the last over the distance between the two camera
+    /// centres (scale-free, so it can be compared with the ground truth's;
+    /// `tools/landmark_depth_check.py`).
+    fn trace_new_landmark(&self, p: &Vec3, obs: &[(usize, Vec3)], source: &'static str) {
+        if !tracing::enabled!(target: "supermvo::landmarks", tracing::Level::TRACE) {
+            return;
+        }
+        let (Some(&(first, b0)), Some(&(last, b1))) = (obs.first(), obs.last()) else {
+            return;
+        };
+        let (Some(pose0), Some(pose1)) = (
+            self.keyframe_poses.get(first),
+            self.keyframe_poses.get(last),
+        ) else {
+            return;
+        };
+        let centre = |pose: &Pose| -(pose.r.transpose() * pose.t);
+        let baseline = (centre(pose1) - centre(pose0)).norm();
+        let depth = (pose1.r * p + pose1.t).z;
+        tracing::trace!(
+            target: "supermvo::landmarks",
+            source,
+            first_frame = self.keyframe_frames[first],
+            last_frame = self.keyframe_frames[last],
+            observations = obs.len(),
+            first_x = b0.x / b0.z,
+            first_y = b0.y / b0.z,
+            last_x = b1.x / b1.z,
+            last_y = b1.y / b1.z,
+            depth_over_baseline = depth / baseline.max(1e-12),
+            "new landmark"
+        );
     }
 }
 
@@ -207,7 +254,7 @@ mod tests {
             Vec3::new(3.0, 0.0, 0.0),
         ];
         for c in centres {
-            tr.new_keyframe_id(at(c));
+            tr.new_keyframe_id(at(c), 0);
         }
         let truth = Vec3::new(1.0, 0.5, 20.0);
         let obs = vec![
@@ -219,7 +266,7 @@ mod tests {
             .map(|(k, b)| (tr.keyframe_poses[*k].r, tr.keyframe_poses[*k].t, *b))
             .collect();
         let p = triangulate_checked(&views, 2.0 / F).unwrap().point;
-        let id = tr.add_landmark(p, obs, &[0.0; 4]);
+        let id = tr.add_landmark(p, obs, &[0.0; 4], "matcher");
         (tr, id, truth)
     }
 
@@ -241,19 +288,72 @@ mod tests {
     fn covisibility_counts_the_landmarks_two_keyframes_share() {
         let mut map = Map::new(F);
         for i in 0..4 {
-            map.new_keyframe_id(at(Vec3::new(i as f64, 0.0, 0.0)));
+            map.new_keyframe_id(at(Vec3::new(i as f64, 0.0, 0.0)), i);
         }
         let b = Vec3::new(0.0, 0.0, 1.0);
         let p = Vec3::new(0.0, 0.0, 10.0);
         // keyframe 3 shares three landmarks with 2, two with 1, one with 0
-        map.add_landmark(p, vec![(0, b), (1, b), (2, b), (3, b)], &[0.0]);
-        map.add_landmark(p, vec![(1, b), (2, b), (3, b)], &[0.0]);
-        map.add_landmark(p, vec![(2, b), (3, b)], &[0.0]);
-        map.add_landmark(p, vec![(0, b), (1, b)], &[0.0]);
+        map.add_landmark(p, vec![(0, b), (1, b), (2, b), (3, b)], &[0.0], "matcher");
+        map.add_landmark(p, vec![(1, b), (2, b), (3, b)], &[0.0], "matcher");
+        map.add_landmark(p, vec![(2, b), (3, b)], &[0.0], "matcher");
+        map.add_landmark(p, vec![(0, b), (1, b)], &[0.0], "matcher");
         assert_eq!(map.covisible(3), vec![(2, 3), (1, 2), (0, 1)]);
         assert_eq!(map.covisible(0), vec![(1, 2), (3, 1), (2, 1)]);
         map.segment_start = 1;
         assert_eq!(map.covisible(3), vec![(2, 3), (1, 2)]);
+    }
+
+    /// The trace of a new landmark carries what `tools/landmark_depth_check.py` compares
+    /// with the ground truth: the frames, the observations and the scale-free depth.
+    #[test]
+    fn a_new_landmark_is_traced_with_its_depth_over_the_baseline() {
+        #[derive(Clone, Default)]
+        struct Buffer(std::sync::Arc<std::sync::Mutex<Vec<u8>>>);
+        impl std::io::Write for Buffer {
+            fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+                self.0.lock().unwrap().extend_from_slice(b);
+                Ok(b.len())
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                Ok(())
+            }
+        }
+        let buffer = Buffer::default();
+        let writer = buffer.clone();
+        let subscriber = tracing_subscriber::fmt()
+            .with_env_filter("supermvo::landmarks=trace")
+            .with_ansi(false)
+            .with_writer(move || writer.clone())
+            .finish();
+        tracing::subscriber::with_default(subscriber, || {
+            let mut map = Map::new(F);
+            map.new_keyframe_id(at(Vec3::zeros()), 10);
+            map.new_keyframe_id(at(Vec3::new(0.0, 0.0, 2.0)), 14);
+            let p = Vec3::new(3.0, -1.0, 20.0);
+            let obs = vec![
+                (0, seen(&p, &Vec3::zeros(), (0.0, 0.0))),
+                (1, seen(&p, &Vec3::new(0.0, 0.0, 2.0), (0.0, 0.0))),
+            ];
+            map.add_landmark(p, obs, &[0.0], "covisible");
+        });
+        let text = String::from_utf8(buffer.0.lock().unwrap().clone()).unwrap();
+        let field = |name: &str| {
+            text.split_whitespace()
+                .find_map(|w| w.strip_prefix(&format!("{name}=")))
+                .unwrap_or_else(|| panic!("{name} missing in {text}"))
+                .to_string()
+        };
+        assert_eq!(field("source"), "\"covisible\"");
+        assert_eq!(
+            (field("first_frame"), field("last_frame")),
+            ("10".into(), "14".into())
+        );
+        assert_eq!(field("observations"), "2");
+        // 18 m deep in the second camera, 2 m from the first
+        let ratio: f64 = field("depth_over_baseline").parse().unwrap();
+        assert!((ratio - 9.0).abs() < 1e-9, "{ratio}");
+        let x: f64 = field("last_x").parse().unwrap();
+        assert!((x - 3.0 / 18.0).abs() < 1e-9, "{x}");
     }
 
     #[test]

@@ -71,7 +71,9 @@ impl Tracker {
             let Some(kf) = self.keyframe.as_mut() else {
                 break;
             };
-            let id = self.map.add_landmark(p, obs, kf.features.descriptor(ik));
+            let id = self
+                .map
+                .add_landmark(p, obs, kf.features.descriptor(ik), "covisible");
             kf.landmark[ik] = Some(id);
         }
         count

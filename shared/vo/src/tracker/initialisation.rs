@@ -101,7 +101,7 @@ impl Tracker {
         // current camera: T_cur_world = T_cur_kf * T_kf_world
         let t_rel = t_rel * s;
         let t_cur_world = Pose::new(r_rel, t_rel).compose(&kf.t_cam_world);
-        let cur_id = self.map.new_keyframe_id(t_cur_world);
+        let cur_id = self.map.new_keyframe_id(t_cur_world, input.index);
         let (keypoints, landmark) = (cur.len(), vec![None; cur.len()]);
         let init = (&inl[..], self.cfg.min_init_parallax_deg);
         self.insert_keyframe(&kf, cur, (input.index, cur_id), t_cur_world, landmark, init);

@@ -43,7 +43,7 @@ impl Tracker {
     ) -> FrameOutput {
         let Pose { r, t } = fit.t_cam_world;
         let tracked = fit.tracked();
-        let cur_id = self.map.new_keyframe_id(fit.t_cam_world);
+        let cur_id = self.map.new_keyframe_id(fit.t_cam_world, input.index);
         let mut landmark = vec![None; cur.len()];
         let observed = lm
             .pairs

@@ -249,7 +249,7 @@ impl Tracker {
     /// Makes `cur` the reference keyframe at `t_cam_world`, without landmarks
     /// (initialisation starts from it).
     fn set_reference(&mut self, frame: usize, t_cam_world: Pose, cur: Features) {
-        let id = self.map.new_keyframe_id(t_cam_world);
+        let id = self.map.new_keyframe_id(t_cam_world, frame);
         self.initialising.clear();
         let (landmark, track) = (vec![None; cur.len()], vec![None; cur.len()]);
         self.keyframe = Some(Keyframe {
@@ -292,7 +292,9 @@ impl Tracker {
             };
             obs.push((cur_id, bearing(&self.calib, &cur.keypoints[b])));
             match self.map.triangulate_track(&obs, min_parallax_deg) {
-                Some(p) => landmark[b] = Some(self.map.add_landmark(p, obs, cur.descriptor(b))),
+                Some(p) => {
+                    landmark[b] = Some(self.map.add_landmark(p, obs, cur.descriptor(b), "matcher"))
+                }
                 None => {
                     self.map.tracks.insert(id, obs);
                     track[b] = Some(id);
