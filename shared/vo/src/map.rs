@@ -182,6 +182,13 @@ impl Map {
         by_weight.sort_by(|a, b| b.1.cmp(&a.1).then(b.0.cmp(&a.0)));
         by_weight
     }
+    /// Forgets every keyframe (their poses, frames and kept keypoints): the next one
+    /// registered is id 0 again.
+    pub(crate) fn forget_keyframes(&mut self) {
+        self.keyframe_poses.clear();
+        self.keyframe_frames.clear();
+        self.keyframe_keypoints.clear();
+    }
     /// Registers the `T_cam_world` of frame `frame`, a new keyframe, and returns its id.
     pub(crate) fn new_keyframe_id(&mut self, t_cam_world: Pose, frame: usize) -> usize {
         self.keyframe_poses.push(t_cam_world);
@@ -200,9 +207,11 @@ impl Map {
         let (Some(&(first, b0)), Some(&(last, b1))) = (obs.first(), obs.last()) else {
             return;
         };
-        let (Some(pose0), Some(pose1)) = (
+        let (Some(pose0), Some(pose1), Some(first_frame), Some(last_frame)) = (
             self.keyframe_poses.get(first),
             self.keyframe_poses.get(last),
+            self.keyframe_frames.get(first),
+            self.keyframe_frames.get(last),
         ) else {
             return;
         };
@@ -212,8 +221,8 @@ impl Map {
         tracing::trace!(
             target: "supermvo::landmarks",
             source,
-            first_frame = self.keyframe_frames[first],
-            last_frame = self.keyframe_frames[last],
+            first_frame,
+            last_frame,
             observations = obs.len(),
             first_x = b0.x / b0.z,
             first_y = b0.y / b0.z,
@@ -327,6 +336,9 @@ mod tests {
             .finish();
         tracing::subscriber::with_default(subscriber, || {
             let mut map = Map::new(F);
+            // a map forgotten (a restored tracker) leaves no frames behind its ids
+            map.new_keyframe_id(at(Vec3::zeros()), 3);
+            map.forget_keyframes();
             map.new_keyframe_id(at(Vec3::zeros()), 10);
             map.new_keyframe_id(at(Vec3::new(0.0, 0.0, 2.0)), 14);
             let p = Vec3::new(3.0, -1.0, 20.0);

@@ -16,8 +16,7 @@ impl Tracker {
         self.keyframe = None;
         self.map.landmarks.clear();
         self.map.tracks.clear();
-        self.map.keyframe_poses.clear();
-        self.map.keyframe_keypoints.clear();
+        self.map.forget_keyframes();
         self.map.segment_start = 0;
         self.frames_since_keyframe = 0;
         self.last_frame = None;
