@@ -20,9 +20,11 @@ observation). `--self-test` checks the computation on constructed landmarks and 
 """
 import argparse
 import math
+import os
 import re
 import statistics
 import sys
+import tempfile
 
 FIELD = re.compile(r'(\w+)=("[^"]*"|\S+)')
 
@@ -161,10 +163,12 @@ def self_test():
     line = 'TRACE supermvo::landmarks: new landmark source="covisible" first_frame=0 last_frame=3 ' \
            'observations=2 first_x=0.15 first_y=-0.05 last_x=0.1764705882352941 ' \
            'last_y=-0.058823529411764705 depth_over_baseline=5.666666666666667'
-    import tempfile
     with tempfile.NamedTemporaryFile("w", suffix=".log", delete=False) as f:
         f.write("unrelated line\n" + line + "\n")
-    parsed = read_landmarks(f.name)
+    try:
+        parsed = read_landmarks(f.name)
+    finally:
+        os.unlink(f.name)
     assert len(parsed) == 1 and parsed[0]["source"] == "covisible", parsed
     assert abs(log_ratios(parsed, poses)[0][1]) < 1e-9
     print("landmark_depth_check: self-test passed")

@@ -20,6 +20,24 @@ pub(crate) struct Landmark {
     pub(crate) desc: Vec<f32>,
 }
 
+/// What made a landmark (named in its trace event, see [`Map::add_landmark`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum LandmarkSource {
+    /// The network's matches between keyframes (a pending track that triangulated).
+    Matcher,
+    /// Epipolar pairing with an earlier keyframe (`tracker::covisible_triangulation`).
+    Covisible,
+}
+
+impl LandmarkSource {
+    fn as_str(self) -> &'static str {
+        match self {
+            Self::Matcher => "matcher",
+            Self::Covisible => "covisible",
+        }
+    }
+}
+
 /// Landmarks, pending tracks and keyframe poses (see the module docs).
 pub(crate) struct Map {
     /// The local map by landmark id: landmarks leave it once none of the last
@@ -62,14 +80,13 @@ impl Map {
     }
 
     /// Adds a landmark with its keyframe observations `(keyframe id, bearing)` and the
-    /// descriptor of the latest, made by `source` (`"matcher"`: the network's matches
-    /// between keyframes; `"covisible"`: epipolar pairing); returns its id.
+    /// descriptor of the latest, made by `source`; returns its id.
     pub(crate) fn add_landmark(
         &mut self,
         p: Vec3,
         obs: Vec<(usize, Vec3)>,
         desc: &[f32],
-        source: &'static str,
+        source: LandmarkSource,
     ) -> usize {
         let id = self.next_landmark;
         self.next_landmark += 1;
@@ -200,7 +217,7 @@ impl Map {
     /// observe it, and its depth in the last over the distance between the two camera
     /// centres (scale-free, so it can be compared with the ground truth's;
     /// `tools/landmark_depth_check.py`).
-    fn trace_new_landmark(&self, p: &Vec3, obs: &[(usize, Vec3)], source: &'static str) {
+    fn trace_new_landmark(&self, p: &Vec3, obs: &[(usize, Vec3)], source: LandmarkSource) {
         if !tracing::enabled!(target: "supermvo::landmarks", tracing::Level::TRACE) {
             return;
         }
@@ -215,12 +232,11 @@ impl Map {
         ) else {
             return;
         };
-        let centre = |pose: &Pose| -(pose.r.transpose() * pose.t);
-        let baseline = (centre(pose1) - centre(pose0)).norm();
-        let depth = (pose1.r * p + pose1.t).z;
+        let baseline = (pose1.inverse().t - pose0.inverse().t).norm();
+        let depth = pose1.transform(p).z;
         tracing::trace!(
             target: "supermvo::landmarks",
-            source,
+            source = source.as_str(),
             first_frame,
             last_frame,
             observations = obs.len(),
@@ -275,7 +291,7 @@ mod tests {
             .map(|(k, b)| (tr.keyframe_poses[*k].r, tr.keyframe_poses[*k].t, *b))
             .collect();
         let p = triangulate_checked(&views, 2.0 / F).unwrap().point;
-        let id = tr.add_landmark(p, obs, &[0.0; 4], "matcher");
+        let id = tr.add_landmark(p, obs, &[0.0; 4], LandmarkSource::Matcher);
         (tr, id, truth)
     }
 
@@ -302,10 +318,20 @@ mod tests {
         let b = Vec3::new(0.0, 0.0, 1.0);
         let p = Vec3::new(0.0, 0.0, 10.0);
         // keyframe 3 shares three landmarks with 2, two with 1, one with 0
-        map.add_landmark(p, vec![(0, b), (1, b), (2, b), (3, b)], &[0.0], "matcher");
-        map.add_landmark(p, vec![(1, b), (2, b), (3, b)], &[0.0], "matcher");
-        map.add_landmark(p, vec![(2, b), (3, b)], &[0.0], "matcher");
-        map.add_landmark(p, vec![(0, b), (1, b)], &[0.0], "matcher");
+        map.add_landmark(
+            p,
+            vec![(0, b), (1, b), (2, b), (3, b)],
+            &[0.0],
+            LandmarkSource::Matcher,
+        );
+        map.add_landmark(
+            p,
+            vec![(1, b), (2, b), (3, b)],
+            &[0.0],
+            LandmarkSource::Matcher,
+        );
+        map.add_landmark(p, vec![(2, b), (3, b)], &[0.0], LandmarkSource::Matcher);
+        map.add_landmark(p, vec![(0, b), (1, b)], &[0.0], LandmarkSource::Matcher);
         assert_eq!(map.covisible(3), vec![(2, 3), (1, 2), (0, 1)]);
         assert_eq!(map.covisible(0), vec![(1, 2), (3, 1), (2, 1)]);
         map.segment_start = 1;
@@ -346,7 +372,7 @@ mod tests {
                 (0, seen(&p, &Vec3::zeros(), (0.0, 0.0))),
                 (1, seen(&p, &Vec3::new(0.0, 0.0, 2.0), (0.0, 0.0))),
             ];
-            map.add_landmark(p, obs, &[0.0], "covisible");
+            map.add_landmark(p, obs, &[0.0], LandmarkSource::Covisible);
         });
         let text = String::from_utf8(buffer.0.lock().unwrap().clone()).unwrap();
         let field = |name: &str| {

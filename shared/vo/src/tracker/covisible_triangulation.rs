@@ -71,9 +71,12 @@ impl Tracker {
             let Some(kf) = self.keyframe.as_mut() else {
                 break;
             };
-            let id = self
-                .map
-                .add_landmark(p, obs, kf.features.descriptor(ik), "covisible");
+            let id = self.map.add_landmark(
+                p,
+                obs,
+                kf.features.descriptor(ik),
+                crate::map::LandmarkSource::Covisible,
+            );
             kf.landmark[ik] = Some(id);
         }
         count

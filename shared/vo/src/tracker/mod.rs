@@ -293,7 +293,12 @@ impl Tracker {
             obs.push((cur_id, bearing(&self.calib, &cur.keypoints[b])));
             match self.map.triangulate_track(&obs, min_parallax_deg) {
                 Some(p) => {
-                    landmark[b] = Some(self.map.add_landmark(p, obs, cur.descriptor(b), "matcher"))
+                    landmark[b] = Some(self.map.add_landmark(
+                        p,
+                        obs,
+                        cur.descriptor(b),
+                        crate::map::LandmarkSource::Matcher,
+                    ))
                 }
                 None => {
                     self.map.tracks.insert(id, obs);
