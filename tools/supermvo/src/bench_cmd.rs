@@ -54,6 +54,11 @@ enum BenchCommand {
         /// XFeat keypoints at sub-pixel precision (`pipeline.subpixel_keypoints`).
         #[arg(long)]
         subpixel_keypoints: bool,
+        /// Also measure each match's distance from its epipolar line under the true motion
+        /// (the sequence's `../../poses/NN.txt`), by the matcher's score: the keypoints' own
+        /// error, with no estimated pose in it.
+        #[arg(long)]
+        ground_truth: bool,
     },
     /// The VO back of the pipeline without the networks: features and matches of a sequence
     /// are computed once, then the tracker (and the loop closer) replay them; medians per
@@ -151,13 +156,14 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             csv,
             frontend,
             subpixel_keypoints,
+            ground_truth,
         } => {
             return matching(
                 sequences,
                 (frontend, *top_k, *subpixel_keypoints),
-                *threshold_px,
-                *confidence,
+                (*threshold_px, *confidence),
                 csv.as_deref(),
+                *ground_truth,
             );
         }
     };
@@ -407,9 +413,9 @@ fn median(v: &mut [f64]) -> f64 {
 fn matching(
     sequences: &[PathBuf],
     (frontend, top_k, subpixel_keypoints): (&str, usize, bool),
-    threshold_px: f64,
-    confidence: f64,
+    (threshold_px, confidence): (f64, f64),
     csv: Option<&std::path::Path>,
+    ground_truth: bool,
 ) -> Result<()> {
     use supermvo_dataset::Sequence;
     use supermvo_geometry::essential::RansacConfig;
@@ -437,14 +443,33 @@ fn matching(
     let mut rows = String::from("seq,frame,matches,inliers\n");
     outln!("| seq | pairs | matches (median / mean) | inliers (median / mean) | inlier ratio (median / mean) |");
     outln!("|---|---|---|---|---|");
+    let mut errors = Vec::new();
     for dir in sequences {
         let seq = Sequence::open(dir)?;
         let k = seq.calib;
+        let truth = if ground_truth {
+            let path = seq.default_ground_truth().with_context(|| {
+                format!(
+                    "--ground-truth: no poses for {} at {}; put the KITTI poses there",
+                    seq.name(),
+                    seq.ground_truth_candidate()
+                        .map_or_else(|| "../../poses".into(), |p| p.display().to_string())
+                )
+            })?;
+            Some(seq.read_ground_truth(&path)?.poses)
+        } else {
+            None
+        };
         let (mut ms, mut is, mut rs) = (Vec::new(), Vec::new(), Vec::new());
+        let mut seq_errors = Vec::new();
         let mut prev = xfeat.extract(&GrayImage::load(&seq.images[0])?)?;
         for (i, path) in seq.images.iter().enumerate().skip(1) {
             let cur = xfeat.extract(&GrayImage::load(path)?)?;
             let m = lg.match_features(&prev, &cur)?;
+            if let Some(t) = &truth {
+                let t_cur_prev = t[i].inverse().compose(&t[i - 1]);
+                seq_errors.extend(epipolar_errors_px(&k, &t_cur_prev, (&prev, &cur), &m));
+            }
             let inl = essential_inliers(&k, &prev, &cur, &m, &ransac);
             rows.push_str(&format!(
                 "{},{},{},{}\n",
@@ -475,11 +500,85 @@ fn matching(
             median(&mut rs),
             rm
         );
+        if truth.is_some() {
+            errors.push((seq.name(), seq_errors));
+        }
     }
     if let Some(p) = csv {
         std::fs::write(p, rows)?;
     }
+    if ground_truth {
+        print_errors_by_score(&errors);
+    }
     Ok(())
+}
+
+/// `(matcher score, pixels)` of each match: the distance of its keypoint in `cur` from the
+/// epipolar line of its keypoint in `prev` under the true motion `t_cur_prev` (normalised
+/// image coordinates scaled by the mean focal length). Empty when the camera did not move.
+fn epipolar_errors_px(
+    k: &supermvo_dataset::Calibration,
+    t_cur_prev: &supermvo_geometry::Pose,
+    (prev, cur): (&supermvo_inference::Features, &supermvo_inference::Features),
+    m: &supermvo_inference::Matches,
+) -> Vec<(f32, f64)> {
+    if t_cur_prev.t.norm() < 1e-9 {
+        return Vec::new();
+    }
+    let e = t_cur_prev.t.cross_matrix() * t_cur_prev.r;
+    let bearing = |p: &[f32; 2]| {
+        supermvo_geometry::Vec3::new(
+            (p[0] as f64 - k.cx) / k.fx,
+            (p[1] as f64 - k.cy) / k.fy,
+            1.0,
+        )
+    };
+    let focal = 0.5 * (k.fx + k.fy);
+    m.pairs
+        .iter()
+        .zip(&m.scores)
+        .map(|(&(a, b), &score)| {
+            let line = e * bearing(&prev.keypoints[a]);
+            let d = bearing(&cur.keypoints[b]).dot(&line).abs() / line.x.hypot(line.y);
+            (score, d * focal)
+        })
+        .collect()
+}
+
+/// Per sequence, the share of matches farther than 1, 2 and 3 px from their true epipolar
+/// line and the median distance, for all matches and per fifth of the matcher's scores.
+fn print_errors_by_score(errors: &[(String, Vec<(f32, f64)>)]) {
+    outln!("\nDistance from the true epipolar line (px), by the matcher's score (fifths, lowest first):");
+    outln!("| seq | matches | score range | median | > 1 px | > 2 px | > 3 px |");
+    outln!("|---|---|---|---|---|---|---|");
+    for (name, e) in errors {
+        let mut e = e.clone();
+        e.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let n = e.len();
+        let row = |label: String, part: &[(f32, f64)]| {
+            let mut d: Vec<f64> = part.iter().map(|x| x.1).collect();
+            let share =
+                |x: f64| d.iter().filter(|&&v| v > x).count() as f64 / d.len().max(1) as f64;
+            let (s1, s2, s3) = (share(1.0), share(2.0), share(3.0));
+            outln!(
+                "| {} | {} | {} | {:.2} | {:.3} | {:.3} | {:.3} |",
+                name,
+                part.len(),
+                label,
+                median(&mut d),
+                s1,
+                s2,
+                s3
+            );
+        };
+        row("all".into(), &e);
+        for q in 0..5 {
+            let part = &e[q * n / 5..(q + 1) * n / 5];
+            if let (Some(lo), Some(hi)) = (part.first(), part.last()) {
+                row(format!("{:.3}-{:.3}", lo.0, hi.0), part);
+            }
+        }
+    }
 }
 
 /// One frame's recorded tracker input.
@@ -629,4 +728,41 @@ fn tracking(
     );
     outln!("{result}");
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use supermvo_geometry::{Mat3, Pose, Vec3};
+    use supermvo_inference::{Features, Matches};
+
+    #[test]
+    fn a_match_off_its_true_epipolar_line_is_measured_in_pixels() {
+        let k = supermvo_dataset::Calibration {
+            fx: 700.0,
+            fy: 700.0,
+            cx: 600.0,
+            cy: 180.0,
+        };
+        // the camera moves 1 m to the right: epipolar lines are the image rows
+        let t_cur_prev = Pose::new(Mat3::identity(), Vec3::new(-1.0, 0.0, 0.0));
+        // the point (2, 1, 10) of the first camera is at (740, 250), then at (670, 250)
+        let at = |pts: Vec<[f32; 2]>| Features {
+            keypoints: pts,
+            ..Default::default()
+        };
+        let prev = at(vec![[740.0, 250.0], [740.0, 250.0]]);
+        let cur = at(vec![[670.0, 250.0], [650.0, 252.0]]);
+        let m = Matches {
+            pairs: vec![(0, 0), (1, 1)],
+            scores: vec![0.9, 0.2],
+        };
+        let e = epipolar_errors_px(&k, &t_cur_prev, (&prev, &cur), &m);
+        assert_eq!(e.len(), 2);
+        assert!(e[0].1 < 1e-9, "{e:?}");
+        assert!((e[1].1 - 2.0).abs() < 1e-9, "{e:?}");
+        assert_eq!((e[0].0, e[1].0), (0.9, 0.2));
+        // no motion, no epipolar geometry
+        assert!(epipolar_errors_px(&k, &Pose::identity(), (&prev, &cur), &m).is_empty());
+    }
 }

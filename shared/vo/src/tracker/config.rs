@@ -91,6 +91,10 @@ pub struct TrackerConfig {
     pub covisible_triangulation_keyframes: usize,
     /// Largest distance (pixels) of a keypoint from the epipolar line of its pair there.
     pub epipolar_max_px: f64,
+    /// The robust refinement (Huber weights from half the PnP threshold) gives no weight to
+    /// a match whose error exceeds this many times the threshold
+    /// (docs/decisions/2026-12-02-covisible-triangulation.md measures 1.5 and 2).
+    pub robust_cutoff_factor: f64,
     /// A frame whose matches to the keyframe's landmarks agree with fewer than
     /// `min_tracked` within the PnP gate (it would be tracked from the motion model's
     /// prediction, or lost) is tried with the gate widened by this factor, and tracked with
@@ -138,6 +142,7 @@ impl Default for TrackerConfig {
             projection_radius_px: 15.0,
             covisible_triangulation_keyframes: 0,
             epipolar_max_px: 2.0,
+            robust_cutoff_factor: 3.0,
             weak_gate_factor: 1.5,
             backfill_frames: 16,
             reinitialise_on_reference: true,

@@ -253,7 +253,7 @@ impl Tracker {
                 &t_cam_world,
                 all_p,
                 all_b,
-                (0.5 * thr, 3.0 * thr),
+                (0.5 * thr, self.cfg.robust_cutoff_factor * thr),
                 10,
             );
             let inlier2 = inliers_at(&robust);
