@@ -3,14 +3,15 @@
 
 Issue 23: a video encoded from a KITTI clip should give a trajectory within 10 % of the PNG
 run's APE. The seed alone moves a clip's APE by up to 30 %, so this compares medians over
-many seeds. Per clip it encodes `image_0/` with Debian's ffmpeg (libx264, `--crf`, yuv420p,
-padded by one black column or row to even sides, which leaves the intrinsics unchanged),
+many seeds. Per clip it encodes `image_0/` with Debian's ffmpeg (libx264, `--crf`, yuv420p; an odd
+side is made even by dropping the last column or row with `--even crop`, the default, or by
+adding a black one with `--even pad`; either leaves the intrinsics unchanged),
 writes the camera file from `calib.txt`, runs `supermvo run` in process on the PNG clip and
 on the video with every seed (ground truth from `poses/`), and prints the median APE of each
 and their ratio. `--json-png` / `--json-video` write the runs in `clip_study.py`'s format, so
 `tools/clip_compare.py PNG.json VIDEO.json` adds the per-clip z-score.
 
-    python3 tools/video_study.py [--clips 00,03,07] [--seeds 0-8] [--crf 18] [--jobs 2]
+    python3 tools/video_study.py [--clips 00,03,07] [--seeds 0-8] [--crf 18] [--even crop] [--jobs 2]
 """
 import argparse
 import concurrent.futures
@@ -32,13 +33,19 @@ def seeds_of(text):
     return [int(s) for s in text.split(",")]
 
 
-def encode(clip, crf, work):
+EVEN = {
+    "crop": "crop=trunc(iw/2)*2:trunc(ih/2)*2:0:0",
+    "pad": "pad=ceil(iw/2)*2:ceil(ih/2)*2",
+}
+
+
+def encode(clip, crf, work, even="crop"):
     """`work/CLIP.mp4` and `work/CLIP.yaml` (the video's camera file, found by its name)."""
     seq = os.path.join(clip_study.KITTI, "sequences", clip)
     video = os.path.join(work, f"{clip}.mp4")
     subprocess.run(["ffmpeg", "-loglevel", "error", "-y", "-framerate", "10", "-i",
                     os.path.join(seq, "image_0", "%06d.png"), "-c:v", "libx264", "-crf", str(crf),
-                    "-pix_fmt", "yuv420p", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", video], check=True)
+                    "-pix_fmt", "yuv420p", "-vf", EVEN[even], video], check=True)
     with open(os.path.join(seq, "calib.txt")) as f:
         p0 = next(line for line in f if line.startswith("P0:")).split()[1:]
     fx, cx, fy, cy = p0[0], p0[2], p0[5], p0[6]
@@ -54,6 +61,8 @@ def main():
     ap.add_argument("--clips", default="00,03,07")
     ap.add_argument("--seeds", default="0-8", help="a range (0-8) or a list (0,1,2)")
     ap.add_argument("--crf", type=int, default=18)
+    ap.add_argument("--even", choices=sorted(EVEN), default="crop",
+                    help="how an odd side becomes even for yuv420p: drop the last column or row, or pad")
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--json-png")
     ap.add_argument("--json-video")
@@ -63,7 +72,7 @@ def main():
     with tempfile.TemporaryDirectory(prefix="video_study_") as work:
         jobs = []
         for clip in args.clips.split(","):
-            video = encode(clip, args.crf, work)
+            video = encode(clip, args.crf, work, args.even)
             gt = os.path.join(clip_study.KITTI, "poses", f"{clip}.txt")
             png = os.path.join(clip_study.KITTI, "sequences", clip)
             for kind, src in (("png", png), ("video", video)):
