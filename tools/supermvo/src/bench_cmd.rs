@@ -419,7 +419,7 @@ fn matching(
 ) -> Result<()> {
     use supermvo_dataset::Sequence;
     use supermvo_geometry::essential::RansacConfig;
-    use supermvo_vo::pairs::essential_inliers;
+    use supermvo_vo::pairs::{epipolar_distances_px, essential_inliers};
     // the front end exactly as the pipeline builds it
     let pipeline = supermvo_config::PipelineConfig {
         frontend: frontend.parse().map_err(anyhow::Error::msg)?,
@@ -468,7 +468,8 @@ fn matching(
             let m = lg.match_features(&prev, &cur)?;
             if let Some(t) = &truth {
                 let t_cur_prev = t[i].inverse().compose(&t[i - 1]);
-                seq_errors.extend(epipolar_errors_px(&k, &t_cur_prev, (&prev, &cur), &m));
+                let d = epipolar_distances_px(&k, &t_cur_prev, (&prev, &cur), &m);
+                seq_errors.extend(m.scores.iter().copied().zip(d));
             }
             let inl = essential_inliers(&k, &prev, &cur, &m, &ransac);
             rows.push_str(&format!(
@@ -508,51 +509,18 @@ fn matching(
         std::fs::write(p, rows)?;
     }
     if ground_truth {
-        print_errors_by_score(&errors);
+        print_errors_by_score(errors);
     }
     Ok(())
 }
 
-/// `(matcher score, pixels)` of each match: the distance of its keypoint in `cur` from the
-/// epipolar line of its keypoint in `prev` under the true motion `t_cur_prev` (normalised
-/// image coordinates scaled by the mean focal length). Empty when the camera did not move.
-fn epipolar_errors_px(
-    k: &supermvo_dataset::Calibration,
-    t_cur_prev: &supermvo_geometry::Pose,
-    (prev, cur): (&supermvo_inference::Features, &supermvo_inference::Features),
-    m: &supermvo_inference::Matches,
-) -> Vec<(f32, f64)> {
-    if t_cur_prev.t.norm() < 1e-9 {
-        return Vec::new();
-    }
-    let e = t_cur_prev.t.cross_matrix() * t_cur_prev.r;
-    let bearing = |p: &[f32; 2]| {
-        supermvo_geometry::Vec3::new(
-            (p[0] as f64 - k.cx) / k.fx,
-            (p[1] as f64 - k.cy) / k.fy,
-            1.0,
-        )
-    };
-    let focal = 0.5 * (k.fx + k.fy);
-    m.pairs
-        .iter()
-        .zip(&m.scores)
-        .map(|(&(a, b), &score)| {
-            let line = e * bearing(&prev.keypoints[a]);
-            let d = bearing(&cur.keypoints[b]).dot(&line).abs() / line.x.hypot(line.y);
-            (score, d * focal)
-        })
-        .collect()
-}
-
 /// Per sequence, the share of matches farther than 1, 2 and 3 px from their true epipolar
 /// line and the median distance, for all matches and per fifth of the matcher's scores.
-fn print_errors_by_score(errors: &[(String, Vec<(f32, f64)>)]) {
+fn print_errors_by_score(errors: Vec<(String, Vec<(f32, f64)>)>) {
     outln!("\nDistance from the true epipolar line (px), by the matcher's score (fifths, lowest first):");
     outln!("| seq | matches | score range | median | > 1 px | > 2 px | > 3 px |");
     outln!("|---|---|---|---|---|---|---|");
-    for (name, e) in errors {
-        let mut e = e.clone();
+    for (name, mut e) in errors {
         e.sort_by(|a, b| a.0.total_cmp(&b.0));
         let n = e.len();
         let row = |label: String, part: &[(f32, f64)]| {
@@ -728,41 +696,4 @@ fn tracking(
     );
     outln!("{result}");
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use supermvo_geometry::{Mat3, Pose, Vec3};
-    use supermvo_inference::{Features, Matches};
-
-    #[test]
-    fn a_match_off_its_true_epipolar_line_is_measured_in_pixels() {
-        let k = supermvo_dataset::Calibration {
-            fx: 700.0,
-            fy: 700.0,
-            cx: 600.0,
-            cy: 180.0,
-        };
-        // the camera moves 1 m to the right: epipolar lines are the image rows
-        let t_cur_prev = Pose::new(Mat3::identity(), Vec3::new(-1.0, 0.0, 0.0));
-        // the point (2, 1, 10) of the first camera is at (740, 250), then at (670, 250)
-        let at = |pts: Vec<[f32; 2]>| Features {
-            keypoints: pts,
-            ..Default::default()
-        };
-        let prev = at(vec![[740.0, 250.0], [740.0, 250.0]]);
-        let cur = at(vec![[670.0, 250.0], [650.0, 252.0]]);
-        let m = Matches {
-            pairs: vec![(0, 0), (1, 1)],
-            scores: vec![0.9, 0.2],
-        };
-        let e = epipolar_errors_px(&k, &t_cur_prev, (&prev, &cur), &m);
-        assert_eq!(e.len(), 2);
-        assert!(e[0].1 < 1e-9, "{e:?}");
-        assert!((e[1].1 - 2.0).abs() < 1e-9, "{e:?}");
-        assert_eq!((e[0].0, e[1].0), (0.9, 0.2));
-        // no motion, no epipolar geometry
-        assert!(epipolar_errors_px(&k, &Pose::identity(), (&prev, &cur), &m).is_empty());
-    }
 }

@@ -51,11 +51,11 @@ mod tracking;
 mod world_updates;
 
 pub use config::TrackerConfig;
+pub(crate) use frame::bearing;
 pub use frame::{FrameInput, FrameMeta, FrameOutput, LatePose, TrackingState};
 pub use local_ba::BaStats;
 
 use crate::map::Map;
-use frame::bearing;
 use supermvo_dataset::Calibration;
 use supermvo_geometry::Pose;
 use supermvo_inference::{Features, Matches};
