@@ -1,8 +1,9 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
 //! The tracker's behaviour on synthetic features (the world in `world/`): frames between
 //! keyframes tracked without the matcher, a local BA solved elsewhere or applied late,
-//! frames dropped upstream or seeing nothing, triangulation against the keyframe before
-//! the reference, frames seen while initialising.
+//! frames dropped upstream or seeing nothing, a new map after a failure at the old map's
+//! scale, triangulation against the keyframe before the reference, frames seen while
+//! initialising.
 
 mod world;
 use world::*;
@@ -184,6 +185,46 @@ fn frames_that_see_nothing_are_relocalised_at_the_map_scale() {
         );
         assert!(unposed >= 2, "scene {scene}: {unposed}");
         assert!((after / before - 1.0).abs() > 0.05, "scene {scene}");
+    }
+}
+
+/// A frame that contradicts the map (every match wrong) in the middle of the turn, while
+/// the reference keyframe is sound: the new map starts from that keyframe and takes the old
+/// map's scale from the landmarks the keyframe saw (`TrackerConfig::reinitialise_at_map_scale`),
+/// so the distance per frame after the failure is the one before within 2 % on three scenes
+/// (measured: 0.3-0.7 %). Without, the new map's median depth is set to the first map's,
+/// which the turn's view does not share: more than 10 % off (measured: 25-27 %), so the test
+/// can fail. KITTI 00 at every third frame fails this way in its turn on some RANSAC seeds.
+#[test]
+fn a_new_map_after_a_failure_continues_at_the_old_scale() {
+    const AT: usize = 75;
+    let drive = Drive {
+        scrambled: Some(AT),
+        ..Drive::default()
+    };
+    let dist = |t: &[(Option<Vec3>, Vec3)], a: usize, b: usize| {
+        (t[b].0.unwrap() - t[a].0.unwrap()).norm() / (t[b].1 - t[a].1).norm()
+    };
+    for scene in 0..3 {
+        for at_scale in [true, false] {
+            let cfg = TrackerConfig {
+                reinitialise_at_map_scale: at_scale,
+                ..TrackerConfig::default()
+            };
+            let t = run_with(scene, 0.5, 0.1, cfg, drive);
+            let unposed = (AT + 3..FRAMES).filter(|&k| t[k].0.is_none()).count();
+            assert_eq!(unposed, 0, "scene {scene}: frames without a pose");
+            let (before, after) = (dist(&t, AT - 11, AT - 1), dist(&t, AT + 5, AT + 15));
+            let change = (after / before - 1.0).abs();
+            println!(
+                "scene {scene}, old map's scale {at_scale}: {before:.4} before, {after:.4} after"
+            );
+            if at_scale {
+                assert!(change < 0.02, "scene {scene}: {change:.4}");
+            } else {
+                assert!(change > 0.10, "scene {scene}: {change:.4}");
+            }
+        }
     }
 }
 

@@ -1,12 +1,24 @@
 //! Two-view initialisation: once the matches to the reference move far enough, the 5-point
 //! essential matrix gives the relative pose and the inliers triangulate the first landmarks;
-//! the scale is a unit baseline at the first map and the last map's median depth after.
+//! the scale is a unit baseline at the first map; a map started after tracking failed
+//! continues the old map's scale where its first view saw the old landmarks, and otherwise
+//! gets the first map's median depth.
 
 use super::frame::bearing;
 use super::{FrameMeta, FrameOutput, Keyframe, Tracker, TrackingState};
 use supermvo_geometry::essential::{find_essential, recover_pose, triangulate_checked};
 use supermvo_geometry::{Mat3, Pose, Vec3};
 use supermvo_inference::{Features, Matches};
+
+/// Keypoints of a new map's first view with both an old landmark's depth and a two-view
+/// depth that the new map needs to take the old map's scale from their ratios.
+pub(crate) const MIN_SHARED_DEPTHS: usize = 10;
+
+/// The middle value (the upper one of an even count); `values` must not be empty.
+fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(f64::total_cmp);
+    values[values.len() / 2]
+}
 
 impl Tracker {
     pub(crate) fn initialise(
@@ -88,16 +100,7 @@ impl Tracker {
         if unit.len() < self.cfg.min_init_landmarks {
             return self.not_initialised_yet(input, kf, (&cur, m), unit.len());
         }
-        let mut depths: Vec<f64> = unit.iter().map(|(_, _, p)| p.z).collect();
-        depths.sort_by(f64::total_cmp);
-        let median = depths[depths.len() / 2];
-        let s = match self.scale {
-            Some(target) => target / median,
-            None => {
-                self.scale = Some(median);
-                1.0
-            }
-        };
+        let s = self.new_map_scale(&kf, &unit);
         // current camera: T_cur_world = T_cur_kf * T_kf_world
         let t_rel = t_rel * s;
         let t_cur_world = Pose::new(r_rel, t_rel).compose(&kf.t_cam_world);
@@ -124,6 +127,31 @@ impl Tracker {
         );
         out.backfilled = backfilled;
         out
+    }
+
+    /// The factor for a two-view map `unit` (points in `kf`'s camera, unit baseline): the
+    /// old map's scale where `kf` saw its landmarks (see
+    /// `TrackerConfig::reinitialise_at_map_scale`); otherwise the first map's median depth
+    /// (1 for the first map itself, which sets it).
+    fn new_map_scale(&mut self, kf: &Keyframe, unit: &[(usize, usize, Vec3)]) -> f64 {
+        if let Some((_, depths)) = self.reference_depths.take().filter(|(id, _)| *id == kf.id) {
+            let ratios: Vec<f64> = unit
+                .iter()
+                .filter_map(|(a, _, p)| Some(depths.get(*a).copied()?? / p.z))
+                .collect();
+            tracing::debug!(shared = ratios.len(), "a new map: landmark depths to keep");
+            if ratios.len() >= MIN_SHARED_DEPTHS {
+                return median(ratios);
+            }
+        }
+        let m = median(unit.iter().map(|(_, _, p)| p.z).collect());
+        match self.scale {
+            Some(target) => target / m,
+            None => {
+                self.scale = Some(m);
+                1.0
+            }
+        }
     }
 
     /// A frame that does not initialise against the reference `kf` yet (too little

@@ -99,6 +99,10 @@ pub struct Tracker {
     /// Scale of the map (median landmark depth at initialisation), to carry across
     /// re-initialisations.
     scale: Option<f64>,
+    /// When tracking failed against a reference keyframe that keeps serving as the new
+    /// map's first view: its id and, per keypoint, the depth of the old map's landmark it
+    /// saw (`TrackerConfig::reinitialise_at_map_scale`).
+    reference_depths: Option<(usize, Vec<Option<f64>>)>,
     /// The landmarks the last frame saw, when it was tracked: what the next frame is
     /// tracked from by projection when it comes without matches.
     last_frame: Option<projection::LastFrame>,
@@ -132,6 +136,7 @@ impl Tracker {
             unseen: 0,
             last_ba: None,
             scale: None,
+            reference_depths: None,
             last_frame: None,
             initialising: Default::default(),
             ba_solver: None,

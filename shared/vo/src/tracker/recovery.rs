@@ -34,17 +34,34 @@ impl Tracker {
         self.velocity = None;
         self.lost_streak = 0;
         self.unseen = 0;
+        let depths = self
+            .cfg
+            .reinitialise_at_map_scale
+            .then(|| self.landmark_depths(&kf));
         self.map.landmarks.clear();
         self.map.tracks.clear();
         self.map.segment_start = self.map.keyframe_poses.len();
         self.last_frame = None;
         self.set_reference(kf.frame, kf.t_cam_world, kf.features);
+        self.reference_depths = depths.zip(self.keyframe.as_ref()).map(|(d, k)| (k.id, d));
         self.frames_since_keyframe = 0;
         let mut out = self.initialise(input, cur, Some(m));
         if out.t_world_cam.is_none() {
             out.state = TrackingState::Lost;
         }
         out
+    }
+
+    /// Per keypoint of `kf`, the depth in its camera of the landmark it observes, if any.
+    fn landmark_depths(&self, kf: &Keyframe) -> Vec<Option<f64>> {
+        let t = &kf.t_cam_world;
+        kf.landmark
+            .iter()
+            .map(|id| {
+                let p = self.map.landmarks.get(id.as_ref()?)?.p;
+                Some((t.r * p + t.t).z).filter(|z| *z > 0.0)
+            })
+            .collect()
     }
 
     /// This frame has no pose and the reference `kf` stays: not enough for the two-view
@@ -121,6 +138,7 @@ impl Tracker {
         self.velocity = None;
         self.lost_streak = 0;
         self.unseen = 0;
+        self.reference_depths = None;
         self.map.landmarks.clear();
         self.map.tracks.clear();
         self.map.segment_start = self.map.keyframe_poses.len();

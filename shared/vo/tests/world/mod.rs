@@ -69,6 +69,10 @@ pub struct Drive {
     pub straight: bool,
     /// Every keypoint with the same Gaussian noise, without the heavy tail.
     pub gaussian: bool,
+    /// This frame's matches are all wrong and its descriptors random (a frame the matcher
+    /// gets wrong): it agrees neither with the reference keyframe's map nor with the local
+    /// map, so tracking fails and a new map starts from the reference keyframe.
+    pub scrambled: Option<usize>,
     /// From frame 10 on, frames `k` with `k % dropped.0 < dropped.1` never reach the tracker
     /// (a real-time pipeline that drops frames it cannot take); `(0, 0)`: none.
     pub dropped: (usize, usize),
@@ -284,6 +288,12 @@ pub fn run_counted_with(
         if (drive.blind.0..drive.blind.1).contains(&k) {
             (f.keypoints, f.scores, f.descriptors, ids) = Default::default();
         }
+        let scrambled = drive.scrambled == Some(k);
+        if scrambled {
+            f.descriptors
+                .iter_mut()
+                .for_each(|d| *d = match_rng.gauss() as f32);
+        }
         let meta = FrameMeta {
             index: k,
             stamp: k as f64 * 0.1,
@@ -304,7 +314,7 @@ pub fn run_counted_with(
                 .filter_map(|(a, i)| at.get(i).map(|&b| (a, b)))
                 .filter(|_| drive.missed == 0.0 || miss_rng.u() >= drive.missed)
                 .map(|(a, b)| {
-                    if match_rng.u() < outliers {
+                    if scrambled || match_rng.u() < outliers {
                         (a, (match_rng.u() * ids.len() as f64) as usize % ids.len())
                     } else {
                         (a, b)
