@@ -197,6 +197,10 @@ pub struct PipelineConfig {
     /// starts a new map from that keyframe, whose pose is known, as its second view; false:
     /// the frame itself starts the new map, placed at the last tracked pose.
     pub reinitialise_on_reference: bool,
+    /// That new map takes the old map's scale from the depths of the landmarks the keyframe
+    /// saw (the median ratio over 10 or more keypoints it shares with the new map); false, or
+    /// with fewer: the new map's median depth is set to the first map's.
+    pub reinitialise_at_map_scale: bool,
     /// Camera file (ORB-SLAM3 / OpenCV YAML or EuRoC `sensor.yaml`) with the intrinsics and
     /// lens distortion of the frames; replaces KITTI's `calib.txt` and EuRoC's own
     /// `sensor.yaml`, and is needed by TUM and image-folder sequences without `camera.yaml`.
@@ -289,6 +293,7 @@ impl Default for PipelineConfig {
             pnp_gate_widening: 1.5,
             backfill_frames: 16,
             reinitialise_on_reference: true,
+            reinitialise_at_map_scale: true,
             camera: None,
             undistort: Undistort::Keypoints,
             match_every_frame: true,

@@ -34,6 +34,7 @@ pub fn tracker_config(cfg: &PipelineConfig) -> TrackerConfig {
         weak_gate_factor: cfg.pnp_gate_widening,
         backfill_frames: cfg.backfill_frames,
         reinitialise_on_reference: cfg.reinitialise_on_reference,
+        reinitialise_at_map_scale: cfg.reinitialise_at_map_scale,
         match_every_frame: cfg.match_every_frame,
         ..TrackerConfig::default()
     }
