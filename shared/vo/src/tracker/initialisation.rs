@@ -12,7 +12,7 @@ use supermvo_inference::{Features, Matches};
 
 /// Keypoints of a new map's first view with both an old landmark's depth and a two-view
 /// depth that the new map needs to take the old map's scale from their ratios.
-pub(crate) const MIN_SHARED_DEPTHS: usize = 10;
+const MIN_SHARED_DEPTHS: usize = 10;
 
 /// The middle value (the upper one of an even count); `values` must not be empty.
 fn median(mut values: Vec<f64>) -> f64 {

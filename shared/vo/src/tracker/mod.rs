@@ -252,10 +252,12 @@ impl Tracker {
     }
 
     /// Makes `cur` the reference keyframe at `t_cam_world`, without landmarks
-    /// (initialisation starts from it).
+    /// (initialisation starts from it) and without an old map's depths (the caller that
+    /// has them sets them after).
     fn set_reference(&mut self, frame: usize, t_cam_world: Pose, cur: Features) {
         let id = self.map.new_keyframe_id(t_cam_world, frame);
         self.initialising.clear();
+        self.reference_depths = None;
         let (landmark, track) = (vec![None; cur.len()], vec![None; cur.len()]);
         self.keyframe = Some(Keyframe {
             id,

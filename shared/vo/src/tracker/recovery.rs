@@ -138,7 +138,6 @@ impl Tracker {
         self.velocity = None;
         self.lost_streak = 0;
         self.unseen = 0;
-        self.reference_depths = None;
         self.map.landmarks.clear();
         self.map.tracks.clear();
         self.map.segment_start = self.map.keyframe_poses.len();
