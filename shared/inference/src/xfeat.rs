@@ -357,14 +357,20 @@ pub fn postprocess(raw: &XFeatRaw, image_size: (usize, usize), cfg: &XFeatConfig
 }
 
 /// The network's input size for `image` resized by `scale`: multiples of 32, at least 32.
+///
+/// At scale 1 each side is cut down to a multiple of 32, as the reference does. A reduced
+/// frame's sides are rounded to the nearest multiple instead, so the network sees the
+/// frame's own aspect ratio: cut down, KITTI's 1241x376 at 0.75 would be 928x256, squeezed
+/// 9 % vertically, which made a radial-tangential lens track 2-3x worse
+/// (docs/decisions/2026-12-06-xfeat-at-three-quarters-nearest-rounding.md).
 fn network_size(image: &GrayImage, scale: f32) -> (usize, usize) {
     let side = |n: usize| {
-        let scaled = if scale == 1.0 {
-            n
+        if scale == 1.0 {
+            ((n / 32) * 32).max(32)
         } else {
-            (n as f32 * scale).round() as usize
-        };
-        ((scaled / 32) * 32).max(32)
+            let scaled = (n as f32 * scale).round() as usize;
+            (((scaled + 16) / 32) * 32).max(32)
+        }
     };
     (side(image.width), side(image.height))
 }
@@ -425,6 +431,30 @@ mod tests {
             assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-6);
         }
         assert_eq!(cubic_weights(0.0), [0.0, 1.0, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn a_reduced_frame_keeps_its_aspect_ratio() {
+        let kitti = GrayImage::new(1241, 376, vec![0; 1241 * 376]).unwrap();
+        // the reference's full frame: each side cut down to a multiple of 32
+        assert_eq!(network_size(&kitti, 1.0), (1216, 352));
+        // reduced: the nearest multiple of 32 (930.75 x 282 -> 928 x 288, not 928 x 256)
+        assert_eq!(network_size(&kitti, 0.75), (928, 288));
+        for scale in [0.25f32, 0.5, 0.6, 0.75, 0.9] {
+            let (w, h) = network_size(&kitti, scale);
+            assert!(w % 32 == 0 && h % 32 == 0);
+            assert!(
+                (w as f32 - 1241.0 * scale).abs() <= 16.5,
+                "{scale}: width {w}"
+            );
+            assert!(
+                (h as f32 - 376.0 * scale).abs() <= 16.5,
+                "{scale}: height {h}"
+            );
+        }
+        // never below one 32-pixel block
+        let tiny = GrayImage::new(40, 40, vec![0; 1600]).unwrap();
+        assert_eq!(network_size(&tiny, 0.25), (32, 32));
     }
 
     #[test]

@@ -54,6 +54,9 @@ enum BenchCommand {
         /// XFeat keypoints at sub-pixel precision (`pipeline.subpixel_keypoints`).
         #[arg(long)]
         subpixel_keypoints: bool,
+        /// XFeat on the frame resized by this factor, 0.25-1 (`pipeline.image_scale`).
+        #[arg(long, default_value_t = 1.0, value_parser = crate::image_scale)]
+        image_scale: f64,
         /// Also measure each match's distance from its epipolar line under the true motion
         /// (the sequence's `../../poses/NN.txt`), by the matcher's score: the keypoints' own
         /// error, with no estimated pose in it.
@@ -156,11 +159,12 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             csv,
             frontend,
             subpixel_keypoints,
+            image_scale,
             ground_truth,
         } => {
             return matching(
                 sequences,
-                (frontend, *top_k, *subpixel_keypoints),
+                (frontend, *top_k, *subpixel_keypoints, *image_scale),
                 (*threshold_px, *confidence),
                 csv.as_deref(),
                 *ground_truth,
@@ -412,7 +416,7 @@ fn median(v: &mut [f64]) -> f64 {
 /// per sequence (median and mean of matches, inliers, inlier ratio).
 fn matching(
     sequences: &[PathBuf],
-    (frontend, top_k, subpixel_keypoints): (&str, usize, bool),
+    (frontend, top_k, subpixel_keypoints, image_scale): (&str, usize, bool, f64),
     (threshold_px, confidence): (f64, f64),
     csv: Option<&std::path::Path>,
     ground_truth: bool,
@@ -425,6 +429,7 @@ fn matching(
         frontend: frontend.parse().map_err(anyhow::Error::msg)?,
         top_k,
         subpixel_keypoints,
+        image_scale,
         ..Default::default()
     };
     let mut xfeat = supermvo_pipeline::features::extractor(

@@ -51,6 +51,13 @@ fn fraction(s: &str) -> Result<f64, String> {
         _ => Err(format!("'{s}' is not a number from 0 to 1")),
     }
 }
+/// `--image-scale`: the range of `pipeline.image_scale`, refused at the flag.
+fn image_scale(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if (0.25..=1.0).contains(&x) => Ok(x),
+        _ => Err(format!("'{s}' is not a scale from 0.25 to 1")),
+    }
+}
 use std::process::ExitCode;
 
 #[derive(Debug, Parser)]
