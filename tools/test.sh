@@ -5,7 +5,9 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash tools/setup.sh
-cargo build --release --workspace --bins
+# the binaries and the tests in one build: built apart, the tests' dev-dependencies change
+# the features of shared dependencies (faer, nalgebra, image) and compile them all twice
+cargo build --release --workspace --bins --tests --examples
 ./target/release/supermvo models fetch onnxruntime xfeat lighterglue lighterglue-l3 aliked lightglue
 # the independent Python readers the diagnostic tests use (iceoryx2 bindings, mcap)
 bash tools/python_tools.sh
