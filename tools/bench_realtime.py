@@ -18,6 +18,8 @@ alone on the machine: they measure what the cores allow.
     python3 tools/bench_realtime.py [--profile realtime] [--runs 3] [--clips 00,07]
                                     [--json out.json] [--synth /tmp/synth] [--speed 2]
 
+`--profile FILE.toml` measures a configuration file as the profile (a candidate change).
+
 `--speed 2` replays twice as fast as the sequence's own rate (KITTI at 20 Hz): the profile's
 file with `pipeline.speed` set, given as `--config` (the lossless runs do not change).
 """
@@ -74,7 +76,8 @@ def spread(values, fmt):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--bin", default=os.path.join(ROOT, "target", "release", "supermvo"))
-    ap.add_argument("--profile", default="realtime")
+    ap.add_argument("--profile", default="realtime",
+                    help="a profile's name, or a configuration file (FILE.toml) to measure as one")
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--clips", default=",".join(clip_study.CLIPS))
     ap.add_argument("--synth", default=os.path.join(tempfile.gettempdir(), "supermvo-bench-synth"))
@@ -83,13 +86,16 @@ def main():
     args = ap.parse_args()
 
     work = tempfile.mkdtemp(prefix="bench_realtime_")
-    realtime = ["--profile", args.profile]
+    is_file = args.profile.endswith(".toml")
+    profile_file = args.profile if is_file else os.path.join(ROOT, "config", f"{args.profile}.toml")
+    chosen = ["--config", profile_file] if is_file else ["--profile", args.profile]
+    realtime = chosen
     if args.speed != 1.0:
-        with open(os.path.join(ROOT, "config", f"{args.profile}.toml")) as f:
+        with open(profile_file) as f:
             text = f.read()
         if "[pipeline]" not in text or "speed" in text:
-            sys.exit(f"bench_realtime: config/{args.profile}.toml: expected a [pipeline] table without `speed`")
-        fast = os.path.join(work, f"{args.profile}_speed.toml")
+            sys.exit(f"bench_realtime: {profile_file}: expected a [pipeline] table without `speed`")
+        fast = os.path.join(work, f"{os.path.basename(profile_file)[:-5]}_speed.toml")
         with open(fast, "w") as f:
             f.write(text.replace("[pipeline]", f"[pipeline]\nspeed = {args.speed}", 1))
         realtime = ["--config", fast]
@@ -102,8 +108,7 @@ def main():
     rows = []
     for name, seq in seqs:
         lossless_out = os.path.join(work, name, "lossless")
-        run([args.bin, "run", seq, "--profile", args.profile, "--mode", "inprocess", "--quiet",
-             "--out", lossless_out])
+        run([args.bin, "run", seq] + chosen + ["--mode", "inprocess", "--quiet", "--out", lossless_out])
         _, lossless = ape(lossless_out)
         default_out = os.path.join(work, name, "default")
         run([args.bin, "run", seq, "--mode", "inprocess", "--quiet", "--out", default_out])

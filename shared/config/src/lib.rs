@@ -252,9 +252,10 @@ pub struct PipelineConfig {
     /// positions.
     pub subpixel_keypoints: bool,
     /// XFeat runs on the frame resized by this factor, [0.25, 1]; keypoints stay in the
-    /// frame's pixels (the network's sides are the nearest multiples of 32). 0.75 tracks the
-    /// KITTI clips more accurately than the full frame but two rendered streets worse
-    /// (docs/decisions/2026-12-06-xfeat-at-three-quarters-nearest-rounding.md), so 1 (the
+    /// frame's pixels (the network's sides cut down to multiples of 32). 0.75 tracks the
+    /// KITTI clips more accurately than the full frame but a radial-tangential lens and two
+    /// rendered streets worse (docs/decisions/2026-12-02-xfeat-at-three-quarters-of-the-frame.md,
+    /// docs/decisions/2026-12-06-xfeat-at-three-quarters-nearest-rounding.md), so 1 (the
     /// full frame) stays the default; the real-time profile uses 0.75 for its cost. Other
     /// front ends see the full frame.
     pub image_scale: f64,
