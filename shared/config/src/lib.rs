@@ -137,6 +137,9 @@ impl std::str::FromStr for Frontend {
 /// (`pipeline.backfill_frames`): what one pose message between the daemon's processes carries.
 pub const MAX_BACKFILL_FRAMES: usize = 16;
 
+/// The factors `pipeline.image_scale` allows (XFeat on a reduced frame).
+pub const IMAGE_SCALE_RANGE: std::ops::RangeInclusive<f64> = 0.25..=1.0;
+
 /// `[pipeline]`: the VO pipeline, in process or as the multi-process daemon.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -395,7 +398,7 @@ impl PipelineConfig {
                 allowed: "must be in [0, 1]".into(),
             });
         }
-        if !(0.25..=1.0).contains(&self.image_scale) {
+        if !IMAGE_SCALE_RANGE.contains(&self.image_scale) {
             return Err(ConfigError::OutOfRange {
                 key: "pipeline.image_scale".into(),
                 value: self.image_scale.to_string(),

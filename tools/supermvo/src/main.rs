@@ -54,7 +54,7 @@ fn fraction(s: &str) -> Result<f64, String> {
 /// `--image-scale`: the range of `pipeline.image_scale`, refused at the flag.
 fn image_scale(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
-        Ok(x) if (0.25..=1.0).contains(&x) => Ok(x),
+        Ok(x) if supermvo_config::IMAGE_SCALE_RANGE.contains(&x) => Ok(x),
         _ => Err(format!("'{s}' is not a scale from 0.25 to 1")),
     }
 }
