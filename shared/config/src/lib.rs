@@ -204,6 +204,13 @@ pub struct PipelineConfig {
     /// saw (the median ratio over 10 or more keypoints it shares with the new map); false, or
     /// with fewer: the new map's median depth is set to the first map's.
     pub reinitialise_at_map_scale: bool,
+    /// New landmarks also between each new keyframe and this many keyframes before its
+    /// reference: keypoints the matcher left free, paired along the epipolar line by
+    /// descriptor and triangulated with the usual checks; 0 switches it off, [0, 4].
+    pub covisible_triangulation: usize,
+    /// The frame's final robust pose refinement gives no weight to a landmark match whose
+    /// error exceeds this many times the PnP gate (2 px), [1, 10].
+    pub robust_cutoff: f64,
     /// Camera file (ORB-SLAM3 / OpenCV YAML or EuRoC `sensor.yaml`) with the intrinsics and
     /// lens distortion of the frames; replaces KITTI's `calib.txt` and EuRoC's own
     /// `sensor.yaml`, and is needed by TUM and image-folder sequences without `camera.yaml`.
@@ -299,6 +306,8 @@ impl Default for PipelineConfig {
             backfill_frames: 16,
             reinitialise_on_reference: true,
             reinitialise_at_map_scale: true,
+            covisible_triangulation: 0,
+            robust_cutoff: 3.0,
             camera: None,
             undistort: Undistort::Keypoints,
             match_every_frame: true,
@@ -405,6 +414,13 @@ impl PipelineConfig {
                 allowed: "must be in [0.25, 1]".into(),
             });
         }
+        if !(1.0..=10.0).contains(&self.robust_cutoff) {
+            return Err(ConfigError::OutOfRange {
+                key: "pipeline.robust_cutoff".into(),
+                value: self.robust_cutoff.to_string(),
+                allowed: "must be in [1, 10]".into(),
+            });
+        }
         if !(1.0..=3.0).contains(&self.pnp_gate_widening) {
             return Err(ConfigError::OutOfRange {
                 key: "pipeline.pnp_gate_widening".into(),
@@ -419,6 +435,12 @@ impl PipelineConfig {
         range("features_workers", self.features_workers, 1, 8)?;
         range("ba_window", self.ba_window, 0, 30)?;
         range("ba_min_shared", self.ba_min_shared, 0, 1000)?;
+        range(
+            "covisible_triangulation",
+            self.covisible_triangulation,
+            0,
+            4,
+        )?;
         range("relocalisation_frames", self.relocalisation_frames, 0, 100)?;
         range(
             "backfill_frames",
@@ -616,6 +638,9 @@ mod tests {
             ("depth_confidence", "-0.5"),
             ("keyframe_ratio", "1.5"),
             ("keyframe_ratio", "-0.1"),
+            ("robust_cutoff", "0.5"),
+            ("robust_cutoff", "11.0"),
+            ("covisible_triangulation", "5"),
             ("image_scale", "0.2"),
             ("image_scale", "1.5"),
         ] {

@@ -35,6 +35,8 @@ pub fn tracker_config(cfg: &PipelineConfig) -> TrackerConfig {
         backfill_frames: cfg.backfill_frames,
         reinitialise_on_reference: cfg.reinitialise_on_reference,
         reinitialise_at_map_scale: cfg.reinitialise_at_map_scale,
+        covisible_triangulation_keyframes: cfg.covisible_triangulation,
+        robust_cutoff_factor: cfg.robust_cutoff,
         match_every_frame: cfg.match_every_frame,
         ..TrackerConfig::default()
     }
