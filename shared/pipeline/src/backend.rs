@@ -34,7 +34,7 @@ pub fn write_outputs(out: &Path, records: &[Record]) -> Result<Vec<usize>> {
     let frames: Vec<(f64, Option<Pose>)> = records
         .iter()
         .filter(|r| r.status != "end")
-        .map(|r| (r.stamp, r.pose.as_ref().map(Pose::from_row_major_3x4)))
+        .map(|r| (r.stamp, r.t_world_cam))
         .collect();
     write_trajectories(out, &frames)
 }
@@ -212,18 +212,19 @@ pub fn run(args: &StageArgs) -> Result<()> {
                 l.log_keyframe(h.seq, f)?;
             }
             rec.add(record(&h, &p))?;
-            for b in p.backfilled_poses() {
-                rec.backfill(b.seq, b.t_world_cam, p.scale)?;
+            let backfilled: Vec<(u64, Pose)> = p
+                .backfilled_poses()
+                .iter()
+                .map(|b| (b.seq, Pose::from_row_major_3x4(&b.t_world_cam)))
+                .collect();
+            for &(seq, t_world_cam) in &backfilled {
+                rec.backfill(seq, t_world_cam, p.scale)?;
             }
             if let Some(l) = loops.as_mut() {
-                let backfilled: Vec<(u64, [f64; 12])> = p
-                    .backfilled_poses()
-                    .iter()
-                    .map(|b| (b.seq, b.t_world_cam))
-                    .collect();
                 let frame = PosedFrame {
                     seq: h.seq,
-                    pose: (p.has_pose == 1).then_some(p.t_world_cam),
+                    t_world_cam: (p.has_pose == 1)
+                        .then(|| Pose::from_row_major_3x4(&p.t_world_cam)),
                     keyframe: p.keyframe == 1,
                     lost: p.state == PoseMsg::LOST,
                     corrections: p.corrections,

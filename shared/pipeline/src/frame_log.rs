@@ -7,6 +7,7 @@
 use anyhow::{Context, Result};
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use supermvo_geometry::Pose;
 use supermvo_messages::{BackendState, FrameHeader, PoseMsg, StageKind, Status};
 
 /// One recorded frame.
@@ -22,8 +23,10 @@ pub struct Record {
     pub status: String,
     /// Tracker state code (see [`PoseMsg::state`]).
     pub state: u32,
-    /// `T_world_cam` when estimated.
-    pub pose: Option<[f64; 12]>,
+    /// The camera's pose in the world when estimated (`pose` in `report.json`, 3x4
+    /// row-major).
+    #[serde(rename = "pose", serialize_with = "row_major_3x4")]
+    pub t_world_cam: Option<Pose>,
     /// Map scale.
     pub scale: f64,
     /// Whether it became a keyframe.
@@ -33,6 +36,11 @@ pub struct Record {
     /// Loop corrections the tracker had applied when it posed the frame
     /// ([`PoseMsg::corrections`]).
     pub corrections: u32,
+}
+
+/// A pose as KITTI's 3x4 row-major matrix, as the files and messages hold it.
+fn row_major_3x4<S: serde::Serializer>(p: &Option<Pose>, s: S) -> Result<S::Ok, S::Error> {
+    serde::Serialize::serialize(&p.map(|p| p.to_row_major_3x4()), s)
 }
 
 /// Name of a status in `frames.csv`.
@@ -63,10 +71,11 @@ impl Record {
             self.scale,
             self.latency_ms
         );
+        let matrix = self.t_world_cam.map(|p| p.to_row_major_3x4());
         for i in 0..12 {
             s.push(',');
-            if let Some(p) = &self.pose {
-                s.push_str(&p[i].to_string());
+            if let Some(m) = &matrix {
+                s.push_str(&m[i].to_string());
             }
         }
         s.push_str(&format!(",{}", self.corrections));
@@ -78,14 +87,14 @@ impl Record {
         if f.len() != 21 {
             return None;
         }
-        let pose = if f[8].is_empty() {
+        let t_world_cam = if f[8].is_empty() {
             None
         } else {
-            let mut p = [0.0; 12];
-            for (i, v) in p.iter_mut().enumerate() {
+            let mut m = [0.0; 12];
+            for (i, v) in m.iter_mut().enumerate() {
                 *v = f[8 + i].parse().ok()?;
             }
-            Some(p)
+            Some(Pose::from_row_major_3x4(&m))
         };
         Some(Self {
             seq: f[0].parse().ok()?,
@@ -96,7 +105,7 @@ impl Record {
             keyframe: f[5] == "1",
             scale: f[6].parse().ok()?,
             latency_ms: f[7].parse().ok()?,
-            pose,
+            t_world_cam,
             corrections: f[20].parse().ok()?,
         })
     }
@@ -139,19 +148,19 @@ pub fn read_lines(path: &Path) -> Result<Vec<Record>> {
 pub fn read_records(path: &Path) -> Result<Vec<Record>> {
     let (late, mut records): (Vec<Record>, Vec<Record>) =
         read_lines(path)?.into_iter().partition(is_late_pose);
-    let pose_of = |status: &str| -> std::collections::HashMap<u64, [f64; 12]> {
+    let pose_of = |status: &str| -> std::collections::HashMap<u64, Pose> {
         late.iter()
             .filter(|r| r.status == status)
-            .filter_map(|r| r.pose.map(|p| (r.seq, p)))
+            .filter_map(|r| r.t_world_cam.map(|p| (r.seq, p)))
             .collect()
     };
     let (backfilled, corrected) = (pose_of(BACKFILLED), pose_of(LOOP_CORRECTED));
     for r in records.iter_mut() {
-        if r.pose.is_none() {
-            r.pose = backfilled.get(&r.seq).copied();
+        if r.t_world_cam.is_none() {
+            r.t_world_cam = backfilled.get(&r.seq).copied();
         }
-        if r.pose.is_some() {
-            r.pose = corrected.get(&r.seq).copied().or(r.pose);
+        if r.t_world_cam.is_some() {
+            r.t_world_cam = corrected.get(&r.seq).copied().or(r.t_world_cam);
         }
     }
     Ok(records)
@@ -169,7 +178,7 @@ pub struct Recorder {
     /// The last frame recorded.
     pub last: Option<Record>,
     /// The last pose recorded: `T_world_cam`, map scale, corrections applied.
-    last_pose: Option<([f64; 12], f64, u32)>,
+    last_pose: Option<(Pose, f64, u32)>,
 }
 
 impl Recorder {
@@ -191,7 +200,7 @@ impl Recorder {
         let last_pose = records
             .iter()
             .rev()
-            .find_map(|r| r.pose.map(|p| (p, r.scale, r.corrections)));
+            .find_map(|r| r.t_world_cam.map(|p| (p, r.scale, r.corrections)));
         Ok(Self {
             path,
             file,
@@ -204,7 +213,7 @@ impl Recorder {
     /// Records one frame.
     pub fn add(&mut self, r: Record) -> Result<()> {
         self.write_line(&r)?;
-        if let Some(p) = r.pose {
+        if let Some(p) = r.t_world_cam {
             self.last_pose = Some((p, r.scale, r.corrections));
         }
         self.count += 1;
@@ -214,23 +223,23 @@ impl Recorder {
 
     /// Records the pose of earlier frame `seq` (a [`BACKFILLED`] line): the frame keeps its
     /// own record, so neither the count nor the last record changes.
-    pub fn backfill(&mut self, seq: u64, pose: [f64; 12], scale: f64) -> Result<()> {
-        self.write_line(&Self::late_pose(seq, BACKFILLED, pose, scale))
+    pub fn backfill(&mut self, seq: u64, t_world_cam: Pose, scale: f64) -> Result<()> {
+        self.write_line(&Self::late_pose(seq, BACKFILLED, t_world_cam, scale))
     }
 
     /// Records the loop-corrected pose of earlier frame `seq` (a [`LOOP_CORRECTED`] line).
-    pub fn correct(&mut self, seq: u64, pose: [f64; 12]) -> Result<()> {
-        self.write_line(&Self::late_pose(seq, LOOP_CORRECTED, pose, 0.0))
+    pub fn correct(&mut self, seq: u64, t_world_cam: Pose) -> Result<()> {
+        self.write_line(&Self::late_pose(seq, LOOP_CORRECTED, t_world_cam, 0.0))
     }
 
-    fn late_pose(seq: u64, status: &str, pose: [f64; 12], scale: f64) -> Record {
+    fn late_pose(seq: u64, status: &str, t_world_cam: Pose, scale: f64) -> Record {
         Record {
             seq,
             frame: 0,
             stamp: 0.0,
             status: status.to_string(),
             state: 1,
-            pose: Some(pose),
+            t_world_cam: Some(t_world_cam),
             scale,
             keyframe: false,
             latency_ms: 0.0,
@@ -257,7 +266,7 @@ impl Recorder {
             frame: last.map_or(0, |r| r.frame),
             has_pose: self.last_pose.is_some() as u32,
             corrections: 0,
-            t_world_cam: self.last_pose.map(|p| p.0).unwrap_or_default(),
+            t_world_cam: self.last_pose.map_or([0.0; 12], |p| p.0.to_row_major_3x4()),
             scale: self.last_pose.map_or(0.0, |p| p.1),
             recorded: self.count as u64,
             state: last.map_or(0, |r| r.state),
@@ -275,7 +284,7 @@ pub fn record(h: &FrameHeader, p: &PoseMsg) -> Record {
         stamp: h.stamp,
         status: status_name(h.status()).to_string(),
         state: p.state,
-        pose: (p.has_pose == 1).then_some(p.t_world_cam),
+        t_world_cam: (p.has_pose == 1).then(|| Pose::from_row_major_3x4(&p.t_world_cam)),
         scale: p.scale,
         keyframe: p.keyframe == 1,
         latency_ms: if h.t_ns[0] > 0 && t_track >= h.t_ns[0] {
@@ -300,7 +309,7 @@ mod tests {
             stamp: 0.310_344_1,
             status: "ok".into(),
             state: 1,
-            pose: Some([
+            t_world_cam: Some(Pose::from_row_major_3x4(&[
                 0.1 + 0.2,
                 -1e-17,
                 3.0,
@@ -313,7 +322,7 @@ mod tests {
                 0.0,
                 1.0,
                 -7.25,
-            ]),
+            ])),
             scale: 12.345_678_9,
             keyframe: true,
             latency_ms: 150.25,
@@ -331,19 +340,19 @@ mod tests {
     fn backfilled_poses_join_their_frames_records() {
         let dir = tempfile::tempdir().unwrap();
         let mut rec = Recorder::open(dir.path()).unwrap();
-        let frame = |seq: u64, pose: Option<[f64; 12]>| Record {
+        let frame = |seq: u64, t_world_cam: Option<Pose>| Record {
             seq,
             frame: seq,
             stamp: seq as f64 * 0.1,
             status: "ok".into(),
-            state: if pose.is_some() { 1 } else { 0 },
-            pose,
+            state: if t_world_cam.is_some() { 1 } else { 0 },
+            t_world_cam,
             scale: 0.0,
-            keyframe: pose.is_some(),
+            keyframe: t_world_cam.is_some(),
             latency_ms: 1.0,
             corrections: 0,
         };
-        let pose = |x: f64| [1.0, 0.0, 0.0, x, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+        let pose = |x: f64| Pose::new(supermvo_geometry::Mat3::identity(), [x, 0.0, 0.0].into());
         rec.add(frame(0, Some(pose(0.0)))).unwrap();
         rec.add(frame(1, None)).unwrap();
         rec.add(frame(2, None)).unwrap();
@@ -351,12 +360,15 @@ mod tests {
         rec.backfill(1, pose(1.0), 5.0).unwrap();
         rec.backfill(2, pose(2.0), 5.0).unwrap();
         let records = read_records(&rec.path).unwrap();
-        let poses: Vec<Option<f64>> = records.iter().map(|r| r.pose.map(|p| p[3])).collect();
+        let poses: Vec<Option<f64>> = records
+            .iter()
+            .map(|r| r.t_world_cam.map(|p| p.t.x))
+            .collect();
         assert_eq!(poses, [Some(0.0), Some(1.0), Some(2.0), Some(3.0)]);
         assert_eq!(
             records[1],
             Record {
-                pose: Some(pose(1.0)),
+                t_world_cam: Some(pose(1.0)),
                 ..frame(1, None)
             }
         );
@@ -364,7 +376,10 @@ mod tests {
         rec.correct(3, pose(30.0)).unwrap();
         rec.correct(1, pose(10.0)).unwrap();
         let records = read_records(&rec.path).unwrap();
-        let poses: Vec<Option<f64>> = records.iter().map(|r| r.pose.map(|p| p[3])).collect();
+        let poses: Vec<Option<f64>> = records
+            .iter()
+            .map(|r| r.t_world_cam.map(|p| p.t.x))
+            .collect();
         assert_eq!(poses, [Some(0.0), Some(10.0), Some(2.0), Some(30.0)]);
         assert_eq!(read_lines(&rec.path).unwrap().len(), 8);
         drop(rec);

@@ -27,8 +27,8 @@ pub const KEYFRAMES_FILE: &str = "keyframes.bin";
 pub struct PosedFrame<'a> {
     /// Sequence number.
     pub seq: u64,
-    /// `T_world_cam`, 3x4 row-major, when estimated.
-    pub pose: Option<[f64; 12]>,
+    /// The camera's pose in the world, when estimated.
+    pub t_world_cam: Option<Pose>,
     /// Whether it became a keyframe.
     pub keyframe: bool,
     /// Whether tracking failed on it (state `Lost`).
@@ -36,7 +36,7 @@ pub struct PosedFrame<'a> {
     /// Corrections the tracker had applied when it estimated the poses.
     pub corrections: u32,
     /// Earlier frames it posed: `(seq, T_world_cam)`.
-    pub backfilled: &'a [(u64, [f64; 12])],
+    pub backfilled: &'a [(u64, Pose)],
 }
 
 /// The back end's loop closing (see module docs).
@@ -75,7 +75,7 @@ impl LoopClosing {
         for (r, backfilled) in frames_with_backfills(lines) {
             let frame = PosedFrame {
                 seq: r.seq,
-                pose: r.pose,
+                t_world_cam: r.t_world_cam,
                 keyframe: r.keyframe,
                 lost: r.state == PoseMsg::LOST,
                 corrections: r.corrections,
@@ -98,7 +98,7 @@ impl LoopClosing {
 
     /// Whether a frame needs its keyframe's features before [`LoopClosing::add`].
     pub fn needs_features(frame: &PosedFrame) -> bool {
-        frame.keyframe && frame.pose.is_some()
+        frame.keyframe && frame.t_world_cam.is_some()
     }
 
     /// Keeps a keyframe's features where a restarted back end finds them (before the
@@ -113,7 +113,7 @@ impl LoopClosing {
         if frame.lost {
             self.closer.add_lost_frame();
         }
-        let pose = Pose::from_row_major_3x4(&frame.pose?);
+        let pose = frame.t_world_cam?;
         let (seq, applied) = (frame.seq as usize, frame.corrections as usize);
         let correction = match features.filter(|_| frame.keyframe) {
             Some(f) => self.closer.add_keyframe_at(seq, &pose, f, applied),
@@ -179,7 +179,7 @@ impl LoopClosing {
 
     /// The loop-corrected pose of every posed frame of `lines` (`frames.csv` in the order
     /// written), by sequence number; empty while no loop was closed.
-    pub fn corrected(&self, lines: &[Record]) -> Vec<(u64, [f64; 12])> {
+    pub fn corrected(&self, lines: &[Record]) -> Vec<(u64, Pose)> {
         if self.closer.loops().is_empty() {
             return Vec::new();
         }
@@ -187,26 +187,24 @@ impl LoopClosing {
             let corrections = r.corrections as usize;
             backfilled
                 .into_iter()
-                .chain(r.pose.map(|p| (r.seq, p)))
-                .map(move |(seq, p)| ReportedPose {
+                .chain(r.t_world_cam.map(|p| (r.seq, p)))
+                .map(move |(seq, t_world_cam)| ReportedPose {
                     frame: seq as usize,
-                    t_world_cam: Pose::from_row_major_3x4(&p),
+                    t_world_cam,
                     corrections,
                 })
         });
         self.closer
             .trajectory(reported)
             .into_iter()
-            .map(|(seq, p)| (seq as u64, p.to_row_major_3x4()))
+            .map(|(seq, p)| (seq as u64, p))
             .collect()
     }
 }
 
 /// Each frame's own line of `frames.csv` (in the order written) with the poses that the
 /// [`BACKFILLED`] lines after it gave earlier frames: `(seq, T_world_cam)`.
-fn frames_with_backfills(
-    lines: &[Record],
-) -> impl Iterator<Item = (&Record, Vec<(u64, [f64; 12])>)> {
+fn frames_with_backfills(lines: &[Record]) -> impl Iterator<Item = (&Record, Vec<(u64, Pose)>)> {
     lines
         .iter()
         .enumerate()
@@ -216,7 +214,7 @@ fn frames_with_backfills(
                 .iter()
                 .take_while(|l| is_late_pose(l))
                 .filter(|l| l.status == BACKFILLED)
-                .filter_map(|l| l.pose.map(|p| (l.seq, p)))
+                .filter_map(|l| l.t_world_cam.map(|p| (l.seq, p)))
                 .collect();
             (r, backfilled)
         })

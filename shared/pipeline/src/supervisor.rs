@@ -583,7 +583,7 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
         pipeline: cfg.name.clone(),
         mode: format!("{:?}", cfg.mode).to_lowercase(),
         duration_s,
-        estimated: records.iter().filter(|r| r.pose.is_some()).count(),
+        estimated: records.iter().filter(|r| r.t_world_cam.is_some()).count(),
         fps: frames.values().sum::<usize>() as f64 / duration_s,
         frames,
         stage_latency_ms: stage_lat

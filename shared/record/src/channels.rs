@@ -120,25 +120,14 @@ pub(crate) fn at(stamp: f64) -> PartialMetadata {
     PartialMetadata::with_log_time((stamp.max(0.0) * 1e9).round() as u64)
 }
 
-/// Position and orientation of `T_world_cam` (3x4, row-major).
-pub(crate) fn pose(t_world_cam: &[f64; 12]) -> Pose {
-    let m = nalgebra::Matrix3::new(
-        t_world_cam[0],
-        t_world_cam[1],
-        t_world_cam[2],
-        t_world_cam[4],
-        t_world_cam[5],
-        t_world_cam[6],
-        t_world_cam[8],
-        t_world_cam[9],
-        t_world_cam[10],
-    );
-    let q = nalgebra::UnitQuaternion::from_matrix(&m);
+/// Position and orientation of the camera in the world.
+pub(crate) fn pose(t_world_cam: &supermvo_geometry::Pose) -> Pose {
+    let q = t_world_cam.quaternion();
     Pose {
         position: Some(Vector3 {
-            x: t_world_cam[3],
-            y: t_world_cam[7],
-            z: t_world_cam[11],
+            x: t_world_cam.t.x,
+            y: t_world_cam.t.y,
+            z: t_world_cam.t.z,
         }),
         orientation: Some(Quaternion {
             x: q.i,
@@ -150,7 +139,7 @@ pub(crate) fn pose(t_world_cam: &[f64; 12]) -> Pose {
 }
 
 /// `T_world_cam` as the transform `world` -> `camera`.
-pub(crate) fn transform(stamp: f64, t_world_cam: &[f64; 12]) -> FrameTransforms {
+pub(crate) fn transform(stamp: f64, t_world_cam: &supermvo_geometry::Pose) -> FrameTransforms {
     let p = pose(t_world_cam);
     FrameTransforms {
         transforms: vec![FrameTransform {

@@ -12,6 +12,7 @@ mod channels;
 
 pub use channels::CHANNELS;
 pub use supermvo_features::FrameView;
+pub use supermvo_geometry::Pose;
 
 use channels::Channels;
 use foxglove::{Context, McapWriterHandle, WebSocketServer, WebSocketServerHandle};
@@ -92,8 +93,8 @@ pub struct FrameRecord<'a> {
     pub stamp: f64,
     /// Tracking state ("initialising", "tracking", "lost", ...).
     pub state: &'a str,
-    /// `T_world_cam` (3x4, row-major), when posed.
-    pub t_world_cam: Option<[f64; 12]>,
+    /// The camera's pose in the world, when posed.
+    pub t_world_cam: Option<Pose>,
     /// Whether the frame became a keyframe.
     pub keyframe: bool,
     /// Keypoints detected, matches to the reference, pose inliers, landmarks in the map.
@@ -254,17 +255,16 @@ impl Recorder {
     /// later frame made known (the tracker poses the frames seen while it initialised once
     /// the map exists): its pose and transform at that frame's time. Ignored for a frame not
     /// among the last unposed ones recorded.
-    pub fn late_pose(&mut self, seq: u64, t_world_cam: &[f64; 12]) {
+    pub fn late_pose(&mut self, seq: u64, t_world_cam: &Pose) {
         let Some((frame, stamp)) = self.unposed.remove(&seq) else {
             return;
         };
         self.pose_at(stamp, t_world_cam);
-        self.positions
-            .insert(frame, [t_world_cam[3], t_world_cam[7], t_world_cam[11]]);
+        self.positions.insert(frame, position(t_world_cam));
     }
 
     /// Pose and transform messages at `stamp`.
-    fn pose_at(&mut self, stamp: f64, t: &[f64; 12]) {
+    fn pose_at(&mut self, stamp: f64, t: &Pose) {
         let at = channels::at(stamp);
         let pose = foxglove::messages::PoseInFrame {
             timestamp: Some(channels::timestamp(stamp)),
@@ -278,10 +278,10 @@ impl Recorder {
         self.summary.poses += 1;
     }
 
-    fn pose(&mut self, f: &FrameRecord<'_>, t: &[f64; 12]) {
+    fn pose(&mut self, f: &FrameRecord<'_>, t: &Pose) {
         let at = channels::at(f.stamp);
         self.pose_at(f.stamp, t);
-        let position = [t[3], t[7], t[11]];
+        let position = position(t);
         if let Some(prev) = self.last_position {
             let id = format!("trajectory/{}", f.seq);
             let segment = channels::segment(f.stamp, id, prev, position, false);
@@ -388,9 +388,15 @@ impl Recorder {
     }
 }
 
+/// The camera's position in the world, as a trajectory point.
+fn position(t_world_cam: &Pose) -> [f64; 3] {
+    [t_world_cam.t.x, t_world_cam.t.y, t_world_cam.t.z]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use supermvo_geometry::{Mat3, Vec3};
 
     fn record_frames(path: &Path, opts: RecordOptions, n: u64) -> RecordSummary {
         let mut rec = Recorder::to_mcap(path, opts).unwrap();
@@ -403,8 +409,7 @@ mod tests {
             map_points: Some(vec![[0.0, 1.0, 2.0]]),
         };
         for i in 0..n {
-            let mut t = [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
-            t[11] = i as f64 * 0.5;
+            let t = Pose::new(Mat3::identity(), Vec3::new(0.0, 0.0, i as f64 * 0.5));
             rec.frame(&FrameRecord {
                 seq: i,
                 frame: i,

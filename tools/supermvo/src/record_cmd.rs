@@ -7,7 +7,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use std::path::{Path, PathBuf};
 use supermvo_dataset::GrayImage;
-use supermvo_record::{FrameRecord, FrameView, ImageRef, RecordOptions, Recorder, Timing};
+use supermvo_record::{FrameRecord, FrameView, ImageRef, Pose, RecordOptions, Recorder, Timing};
 use supermvo_vo::loops::LoopEdge;
 use supermvo_vo::tracker::FrameOutput;
 
@@ -85,7 +85,7 @@ impl InprocessRecording {
             frame: out.index as u64,
             stamp: out.stamp,
             state: state.as_str().unwrap_or("unknown"),
-            t_world_cam: out.t_world_cam.map(|p| p.to_row_major_3x4()),
+            t_world_cam: out.t_world_cam,
             keyframe: out.keyframe,
             counts: [out.keypoints, out.matches, out.inliers, out.landmarks].map(|v| v as u64),
             view,
@@ -98,7 +98,7 @@ impl InprocessRecording {
         self.recorder.frame(&record);
         for late in &out.backfilled {
             self.recorder
-                .late_pose(late.index as u64, &late.t_world_cam.to_row_major_3x4());
+                .late_pose(late.index as u64, &late.t_world_cam);
         }
         self.recorder.timing(&Timing {
             frame: out.index as u64,
@@ -350,7 +350,7 @@ fn record_viewed(rec: &mut Recorder, f: &supermvo_pipeline::viewer::ViewedFrame)
         2 => "lost",
         _ => "no frame",
     };
-    let pose = (p.has_pose == 1).then_some(p.t_world_cam);
+    let pose = (p.has_pose == 1).then(|| Pose::from_row_major_3x4(&p.t_world_cam));
     rec.frame(&FrameRecord {
         seq: h.seq,
         frame: h.frame,
@@ -372,7 +372,7 @@ fn record_viewed(rec: &mut Recorder, f: &supermvo_pipeline::viewer::ViewedFrame)
         }),
     });
     for b in p.backfilled_poses() {
-        rec.late_pose(b.seq, &b.t_world_cam);
+        rec.late_pose(b.seq, &Pose::from_row_major_3x4(&b.t_world_cam));
     }
     let (stage_ms, capture_to_pose_ms) = f.stage_ms();
     rec.timing(&Timing {

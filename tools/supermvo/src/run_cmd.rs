@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use supermvo_config::{Config, IngestMode, NetworkPlacement};
 use supermvo_dataset::{Camera, GrayImage, Sequence, Trajectory};
 use supermvo_eval::{evaluate, EvalOptions};
-use supermvo_geometry::{AlignmentKind, Pose};
+use supermvo_geometry::AlignmentKind;
 use supermvo_pipeline::backend::{read_records, write_trajectories};
 use supermvo_pipeline::supervisor::{default_bin_dir, SupervisorOptions};
 use supermvo_pipeline::{features, matching, tracking};
@@ -549,11 +549,7 @@ fn run_multiprocess(
     let records = read_records(&args.out.join("frames.csv"))?;
     let est: Vec<_> = records
         .iter()
-        .filter_map(|r| {
-            r.pose
-                .as_ref()
-                .map(|p| (r.stamp, Pose::from_row_major_3x4(p)))
-        })
+        .filter_map(|r| r.t_world_cam.map(|p| (r.stamp, p)))
         .collect();
     let traj = Trajectory {
         stamps: Some(est.iter().map(|e| e.0).collect()),
@@ -568,7 +564,7 @@ fn run_multiprocess(
         .iter()
         .filter(|r| r.status != "end")
         .enumerate()
-        .filter(|(_, r)| r.pose.is_none())
+        .filter(|(_, r)| r.t_world_cam.is_none())
         .map(|(i, _)| i)
         .collect();
     let e2e = &metrics.end_to_end_ms;
