@@ -414,13 +414,6 @@ impl PipelineConfig {
                 allowed: "must be in [0.25, 1]".into(),
             });
         }
-        if !(1.0..=10.0).contains(&self.robust_cutoff) {
-            return Err(ConfigError::OutOfRange {
-                key: "pipeline.robust_cutoff".into(),
-                value: self.robust_cutoff.to_string(),
-                allowed: "must be in [1, 10]".into(),
-            });
-        }
         if !(1.0..=3.0).contains(&self.pnp_gate_widening) {
             return Err(ConfigError::OutOfRange {
                 key: "pipeline.pnp_gate_widening".into(),
@@ -441,6 +434,7 @@ impl PipelineConfig {
             0,
             4,
         )?;
+        range("robust_cutoff", self.robust_cutoff, 1.0, 10.0)?;
         range("relocalisation_frames", self.relocalisation_frames, 0, 100)?;
         range(
             "backfill_frames",
