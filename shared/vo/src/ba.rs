@@ -4,6 +4,7 @@
 //! Keyframes marked fixed fix the gauge (pose and, with two of them, the monocular scale).
 
 use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, Vector3};
+use std::ops::{AddAssign, SubAssign};
 use supermvo_geometry::{so3_exp, Pose, Vec3};
 use supermvo_optim::lm::{minimise, LeastSquares, LmParams};
 use supermvo_optim::projection::{reprojection, reprojection_residual};
@@ -63,8 +64,17 @@ struct Normal {
     gc: DVector<f64>,
     hpp: Vec<Matrix3<f64>>,
     gp: Vec<Vector3<f64>>,
-    /// `(camera slot, point, 6x3 block)` per observation of a free keyframe.
-    hcp: Vec<(usize, usize, SMatrix<f64, 6, 3>)>,
+    /// `(camera slot, 6x3 block)` per observation of a free keyframe, grouped by point
+    /// (in observation order within a point): point `p`'s are `hcp[first[p]..first[p + 1]]`.
+    hcp: Vec<(usize, SMatrix<f64, 6, 3>)>,
+    first: Vec<usize>,
+}
+
+impl Normal {
+    /// Point `p`'s camera-point blocks.
+    fn blocks(&self, p: usize) -> &[(usize, SMatrix<f64, 6, 3>)] {
+        &self.hcp[self.first[p]..self.first[p + 1]]
+    }
 }
 
 /// A step: the free keyframes' tangent updates, and each point's update.
@@ -98,8 +108,10 @@ impl LeastSquares for Window<'_> {
             hpp: vec![Matrix3::zeros(); np],
             gp: vec![Vector3::zeros(); np],
             hcp: Vec::new(),
+            first: Vec::new(),
         };
         let kernel = Kernel::Huber(self.ba.huber);
+        let mut hcp = Vec::new();
         for o in &self.ba.observations {
             let Pose { r, t } = &poses[o.kf];
             let Some(lin) = reprojection(r, t, &points[o.point], &o.bearing) else {
@@ -109,22 +121,20 @@ impl LeastSquares for Window<'_> {
             let w = kernel.weight(e.norm_squared());
             n.hpp[o.point] += w * jp.transpose() * jp;
             n.gp[o.point] += w * jp.transpose() * e;
-            if self.slot[o.kf] == usize::MAX {
+            let slot = self.slot[o.kf];
+            if slot == usize::MAX {
                 continue;
             }
             let jc = lin.d_pose;
-            let s = self.slot[o.kf] * 6;
-            let hb = w * jc.transpose() * jc;
-            let gb = w * jc.transpose() * e;
-            for a in 0..6 {
-                n.gc[s + a] += gb[a];
-                for b in 0..6 {
-                    n.hcc[(s + a, s + b)] += hb[(a, b)];
-                }
-            }
-            n.hcp
-                .push((self.slot[o.kf], o.point, w * jc.transpose() * jp));
+            let s = slot * 6;
+            n.hcc
+                .fixed_view_mut::<6, 6>(s, s)
+                .add_assign(&(w * jc.transpose() * jc));
+            n.gc.fixed_rows_mut::<6>(s)
+                .add_assign(&(w * jc.transpose() * e));
+            hcp.push((o.point, slot, w * jc.transpose() * jp));
         }
+        (n.hcp, n.first) = group_by_point(hcp, np);
         Some(n)
     }
 
@@ -149,25 +159,14 @@ impl LeastSquares for Window<'_> {
             s[(k, k)] += lambda * n.hcc[(k, k)] + 1e-12;
         }
         let mut rhs = -n.gc.clone();
-        let mut by_point: Vec<Vec<(usize, SMatrix<f64, 6, 3>)>> = vec![Vec::new(); np];
-        for &(c, p, ref m) in &n.hcp {
-            by_point[p].push((c, *m));
-        }
-        for p in 0..np {
-            let hi = hpp_inv[p];
-            for &(c1, m1) in &by_point[p] {
+        for (p, (hi, gp)) in hpp_inv.iter().zip(&n.gp).enumerate() {
+            let blocks = n.blocks(p);
+            for &(c1, m1) in blocks {
                 let m1hi = m1 * hi;
-                let r1 = m1hi * n.gp[p];
-                for k in 0..6 {
-                    rhs[c1 * 6 + k] += r1[k];
-                }
-                for &(c2, m2) in &by_point[p] {
-                    let blk = m1hi * m2.transpose();
-                    for a in 0..6 {
-                        for b in 0..6 {
-                            s[(c1 * 6 + a, c2 * 6 + b)] -= blk[(a, b)];
-                        }
-                    }
+                rhs.fixed_rows_mut::<6>(c1 * 6).add_assign(&(m1hi * gp));
+                for &(c2, m2) in blocks {
+                    s.fixed_view_mut::<6, 6>(c1 * 6, c2 * 6)
+                        .sub_assign(&(m1hi * m2.transpose()));
                 }
             }
         }
@@ -180,7 +179,7 @@ impl LeastSquares for Window<'_> {
         let points = (0..np)
             .map(|p| {
                 let mut r = -n.gp[p];
-                for &(c, m) in &by_point[p] {
+                for &(c, m) in n.blocks(p) {
                     let d = SMatrix::<f64, 6, 1>::from_fn(|k, _| cameras[c * 6 + k]);
                     r -= m.transpose() * d;
                 }
@@ -205,6 +204,28 @@ impl LeastSquares for Window<'_> {
             .collect();
         (new_poses, new_points)
     }
+}
+
+/// `(point, camera slot, block)` triples grouped by point, keeping their order within a
+/// point: the blocks, and where each point's start (`np + 1` offsets).
+fn group_by_point(
+    hcp: Vec<(usize, usize, SMatrix<f64, 6, 3>)>,
+    np: usize,
+) -> (Vec<(usize, SMatrix<f64, 6, 3>)>, Vec<usize>) {
+    let mut first = vec![0usize; np + 1];
+    for &(p, _, _) in &hcp {
+        first[p + 1] += 1;
+    }
+    for p in 0..np {
+        first[p + 1] += first[p];
+    }
+    let mut next = first.clone();
+    let mut grouped = vec![(0, SMatrix::zeros()); hcp.len()];
+    for (p, c, m) in hcp {
+        grouped[next[p]] = (c, m);
+        next[p] += 1;
+    }
+    (grouped, first)
 }
 
 impl LocalBa {

@@ -157,39 +157,69 @@ pub(super) fn mutual_matches(
     if a.nrows() == 0 || b.nrows() == 0 {
         return Vec::new();
     }
+    // one pass down the columns (nalgebra stores them contiguously): each column's best
+    // row, and each row's best column so far; ties go to the lowest index either way
     let sim = a * b.transpose();
-    let best_b: Vec<(usize, f32)> =
-        (0..sim.nrows())
-            .map(|i| {
-                let row = sim.row(i);
-                let (j, v) = row.iter().enumerate().fold((0, f32::MIN), |acc, (j, &v)| {
-                    if v > acc.1 {
-                        (j, v)
-                    } else {
-                        acc
-                    }
-                });
-                (j, v)
-            })
-            .collect();
-    let best_a: Vec<usize> = (0..sim.ncols())
-        .map(|j| {
-            sim.column(j)
-                .iter()
-                .enumerate()
-                .fold(
-                    (0, f32::MIN),
-                    |acc, (i, &v)| if v > acc.1 { (i, v) } else { acc },
-                )
-                .0
+    let rows = sim.nrows();
+    let (mut row_best, mut row_arg) = (vec![f32::MIN; rows], vec![0u32; rows]);
+    let best_a: Vec<usize> = sim
+        .as_slice()
+        .chunks_exact(rows)
+        .enumerate()
+        .map(|(j, column)| {
+            for ((rb, ra), &v) in row_best.iter_mut().zip(&mut row_arg).zip(column) {
+                // a select, not a branch, so that it vectorises
+                let better = v > *rb;
+                *rb = if better { v } else { *rb };
+                *ra = if better { j as u32 } else { *ra };
+            }
+            first_argmax(column)
         })
         .collect();
-    best_b
+    let best_b = row_arg
         .iter()
+        .zip(&row_best)
+        .map(|(&j, &v)| (j as usize, v));
+    best_b
         .enumerate()
-        .filter(|(i, (j, v))| *v >= min_cos && best_a[*j] == *i)
-        .map(|(i, (j, _))| (i, *j))
+        .filter(|&(i, (j, v))| v >= min_cos && best_a[j] == i)
+        .map(|(i, (j, _))| (i, j))
         .collect()
+}
+
+/// The index of the first largest value of `v` (0 if empty or all NaN), scanned eight
+/// lanes at a time so that it vectorises: each lane keeps its own first maximum, and ties
+/// between lanes go to the lowest index.
+fn first_argmax(v: &[f32]) -> usize {
+    const LANES: usize = 8;
+    let (mut best, mut at) = ([f32::MIN; LANES], [0u32; LANES]);
+    let chunks = v.chunks_exact(LANES);
+    let rest = chunks.remainder();
+    for (c, chunk) in chunks.enumerate() {
+        for l in 0..LANES {
+            let better = chunk[l] > best[l];
+            best[l] = if better { chunk[l] } else { best[l] };
+            at[l] = if better {
+                (c * LANES + l) as u32
+            } else {
+                at[l]
+            };
+        }
+    }
+    let mut winner = (0usize, f32::MIN);
+    for l in 0..LANES {
+        let i = at[l] as usize;
+        if best[l] > winner.1 || (best[l] == winner.1 && best[l] > f32::MIN && i < winner.0) {
+            winner = (i, best[l]);
+        }
+    }
+    let tail = v.len() - rest.len();
+    for (k, &x) in rest.iter().enumerate() {
+        if x > winner.1 {
+            winner = (tail + k, x);
+        }
+    }
+    winner.0
 }
 
 #[cfg(test)]
@@ -202,5 +232,42 @@ mod tests {
         let b = DMatrix::<f32>::from_row_slice(2, 2, &[0.0, 1.0, 1.0, 0.0]);
         let m = mutual_matches(&a, &b, 0.9);
         assert_eq!(m, vec![(0, 1), (1, 0)]);
+    }
+
+    /// The scan by columns and lanes finds what a plain scan of every row and column finds,
+    /// ties (coarse values) and odd sizes included.
+    #[test]
+    fn mutual_matches_agree_with_a_plain_scan() {
+        let mut state = 0x2545_f491u64;
+        let mut u = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        for (na, nb, levels) in [(37, 53, 4.0), (64, 64, 1e6), (5, 300, 3.0), (129, 17, 50.0)] {
+            let mut quantised =
+                |n: usize| DMatrix::<f32>::from_fn(n, 3, |_, _| (u() * levels).round() / levels);
+            let (a, b) = (quantised(na), quantised(nb));
+            let sim = &a * b.transpose();
+            let first_max = |v: Vec<f32>| {
+                v.iter()
+                    .enumerate()
+                    .fold((0, f32::MIN), |m, (i, &x)| if x > m.1 { (i, x) } else { m })
+            };
+            let plain: Vec<(usize, usize)> = (0..na)
+                .filter_map(|i| {
+                    let (j, v) = first_max(sim.row(i).iter().copied().collect());
+                    let back = first_max(sim.column(j).iter().copied().collect()).0;
+                    (v >= 0.1 && back == i).then_some((i, j))
+                })
+                .collect();
+            for column in sim.column_iter() {
+                let v: Vec<f32> = column.iter().copied().collect();
+                assert_eq!(first_argmax(&v), first_max(v.clone()).0, "{v:?}");
+            }
+            assert!(!plain.is_empty());
+            assert_eq!(mutual_matches(&a, &b, 0.1), plain, "{na} x {nb}");
+        }
     }
 }
