@@ -15,10 +15,13 @@ arguments go to every `supermvo run` (for example `--frontend orb`), and `--bin`
 another build. `--peer ARGS` runs every sequence a second time, right after, with those
 arguments instead (for example `--peer=--keyframe-matching`, the matcher only for keyframes), and
 adds the peer's posed frames, APE and time per frame and the ratio of the times: a speed
-comparison on the same machine in the same minutes.
+comparison on the same machine in the same minutes. `--peer-bin PATH` runs the peer with
+another build (for example one of the main before a change), with `--peer` arguments or the
+same ones.
 
     python3 tools/clip_study.py [--strides 1,2,3] [--clips 00,03] [--json out.json]
-                                [--seeds 0,1,2] [--jobs 2] [--peer=ARGS] [-- ARGS]
+                                [--seeds 0,1,2] [--jobs 2] [--peer=ARGS] [--peer-bin PATH]
+                                [-- ARGS]
 
 `--seeds` runs every sequence with each RANSAC seed and reports the run with the median
 APE; `--jobs` runs that many at once (for accuracy; timing needs one at a time). With
@@ -117,6 +120,7 @@ def main():
     ap.add_argument("--clips", default=",".join(CLIPS))
     ap.add_argument("--json", help="also write the rows here")
     ap.add_argument("--peer", help="arguments of a second run of every sequence (space-separated)")
+    ap.add_argument("--peer-bin", help="build that runs the peer (default: --bin)")
     ap.add_argument("--seeds", default="0", help="RANSAC seeds, comma-separated; each row is the median run")
     ap.add_argument("--jobs", type=int, default=1, help="runs at once (accuracy studies; not with --peer)")
     ap.add_argument("extra", nargs="*", help="arguments passed on to every `supermvo run`")
@@ -129,7 +133,10 @@ def main():
     strides = [int(s) for s in args.strides.split(",")]
     clips = [c for c in args.clips.split(",") if os.path.isdir(os.path.join(KITTI, "sequences", c))]
     rows = []
-    peer = args.peer.split() if args.peer is not None else None
+    peer = args.peer.split() if args.peer is not None else ([] if args.peer_bin else None)
+    peer_bin = args.peer_bin or args.bin
+    if not os.access(peer_bin, os.X_OK):
+        sys.exit(f"clip_study: {peer_bin} not found")
     seeds = [int(x) for x in args.seeds.split(",")]
     if peer is not None and args.jobs > 1:
         sys.exit("clip_study: --peer compares speed, so its runs go one at a time (no --jobs)")
@@ -151,7 +158,7 @@ def main():
             r.update(clip=c, stride=s, seed=seed)
             if peer is not None:
                 out = os.path.join(tmp, "out", f"{c}_{s}_{seed}_peer")
-                r["peer"] = run_one(args.bin, seq, out, extra + peer)
+                r["peer"] = run_one(peer_bin, seq, out, extra + peer)
             return r
 
         with concurrent.futures.ThreadPoolExecutor(max_workers=max(args.jobs, 1)) as pool:
@@ -178,7 +185,8 @@ def main():
                 print(flush=True)
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"extra": args.extra, "peer": peer, "bin": args.bin, "rows": rows}, f, indent=1)
+            json.dump({"extra": args.extra, "peer": peer, "bin": args.bin, "peer_bin": peer_bin,
+                       "rows": rows}, f, indent=1)
 
 
 if __name__ == "__main__":
