@@ -207,7 +207,7 @@ impl LeastSquares for Window<'_> {
 }
 
 /// `(point, camera slot, block)` triples grouped by point, keeping their order within a
-/// point: the blocks, and where each point's start (`np + 1` offsets).
+/// point: the blocks, and where each point's blocks start (`np + 1` offsets).
 fn group_by_point(
     hcp: Vec<(usize, usize, SMatrix<f64, 6, 3>)>,
     np: usize,
