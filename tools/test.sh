@@ -18,4 +18,5 @@ python3 tools/models/test_superpoint_superglue.py
 python3 tools/models/test_aliked_lightglue.py
 # the landmark depth check against a ground truth (docs/vo.md), on constructed landmarks
 python3 tools/landmark_depth_check.py --self-test
-cargo test --workspace --release "$@"
+# the vo crate's long statistical runs too (plain `cargo test` skips them, saying so)
+SUPERMVO_LONG_TESTS=1 cargo test --workspace --release "$@"

@@ -128,6 +128,9 @@ fn scale_walk_with_the_camera_ahead_of_the_axle() {
 /// m; one scene goes the other way, so this is an average, not a per-scene claim).
 #[test]
 fn robust_refinement_makes_the_run_depend_less_on_the_seed() {
+    if !long_tests("robust_refinement_makes_the_run_depend_less_on_the_seed") {
+        return;
+    }
     let gap = |robust: bool, scene: u64| {
         let cfg = |seed| TrackerConfig {
             robust_refinement: robust,
@@ -171,6 +174,9 @@ fn robust_refinement_makes_the_run_depend_less_on_the_seed() {
 /// hold: docs/decisions/2026-12-02-scale-with-heavy-tailed-keypoint-noise.md.)
 #[test]
 fn the_scale_holds_on_a_long_straight_road_with_gaussian_noise() {
+    if !long_tests("the_scale_holds_on_a_long_straight_road_with_gaussian_noise") {
+        return;
+    }
     let drive = Drive {
         frames: 400,
         straight: true,

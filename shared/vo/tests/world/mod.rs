@@ -15,6 +15,19 @@ pub use supermvo_inference::{Features, Matches};
 pub use supermvo_vo::ba::{BaOutcome, BaSolver, LocalBa};
 pub use supermvo_vo::tracker::{FrameMeta, Tracker, TrackerConfig};
 
+/// Whether the long statistical runs (the full tier) run: `tools/test.sh`, the README's test
+/// command, sets `SUPERMVO_LONG_TESTS=1`; plain `cargo test` prints that it skips `name`, so
+/// that the crate's own tests take about a minute.
+pub fn long_tests(name: &str) -> bool {
+    let on = std::env::var("SUPERMVO_LONG_TESTS").as_deref() == Ok("1");
+    if !on {
+        println!(
+            "skipped {name}: a long run of the full tier (SUPERMVO_LONG_TESTS=1, tools/test.sh)"
+        );
+    }
+    on
+}
+
 /// xorshift64: deterministic across platforms.
 pub struct Rng(pub u64);
 impl Rng {
