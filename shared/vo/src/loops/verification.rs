@@ -176,14 +176,12 @@ pub(super) fn mutual_matches(
             first_argmax(column)
         })
         .collect();
-    let best_b = row_arg
+    row_arg
         .iter()
         .zip(&row_best)
-        .map(|(&j, &v)| (j as usize, v));
-    best_b
         .enumerate()
-        .filter(|&(i, (j, v))| v >= min_cos && best_a[j] == i)
-        .map(|(i, (j, _))| (i, j))
+        .filter(|&(i, (&j, &v))| v >= min_cos && best_a[j as usize] == i)
+        .map(|(i, (&j, _))| (i, j as usize))
         .collect()
 }
 
