@@ -215,16 +215,26 @@ fn multiprocess_lossless_equals_inprocess_bit_for_bit_on_kitti_03() {
         assert_eq!(rec.keyframe, out.keyframe, "frame {i}");
     }
     assert_eq!(records[n].status, "end");
-    // every local BA was solved in the back-end process: the tracker solves one itself only
-    // when no back end answers
-    let solved = std::fs::read_to_string(tmp.path().join("local_ba.csv"))
-        .unwrap()
-        .lines()
-        .count()
-        - 1;
+    // the local mapping ran in the back-end process: the triangulations of every keyframe
+    // tracked against the map (not those that initialise one) and every local BA (the
+    // tracker does such work itself only when no back end answers)
+    let lines = |name: &str| {
+        std::fs::read_to_string(tmp.path().join(name))
+            .unwrap()
+            .lines()
+            .count()
+            - 1
+    };
+    let solved = lines("local_ba.csv");
     assert!(solved >= 50, "{solved} local BAs solved in the back end");
+    let triangulated = lines("triangulation.csv");
+    let keyframes = records.iter().filter(|r| r.keyframe).count();
+    assert!(
+        10 * triangulated >= 9 * keyframes && triangulated >= 50,
+        "{triangulated} keyframes triangulated in the back end of {keyframes}"
+    );
     let log = std::fs::read_to_string(tmp.path().join("logs/tracking-0.log")).unwrap();
-    assert!(!log.contains("solved here"), "{log}");
+    assert!(!log.contains("done here"), "{log}");
     assert_eq!(metrics.frames.get("ok"), Some(&n));
     assert!(metrics.restarts.is_empty());
     assert!(metrics.end_to_end_ms.count == n);

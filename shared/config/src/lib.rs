@@ -244,10 +244,11 @@ pub struct PipelineConfig {
     /// Recognise revisited places and correct the trajectory (and the tracker's map) with a
     /// Sim(3) pose graph of keyframes.
     pub loop_closure: bool,
-    /// Solve the tracker's local bundle adjustments in the daemon's back-end process
-    /// (lossless: the tracker waits for each, the run stays bit-identical; real time: the
-    /// tracker goes on and applies the solution when it arrives). false keeps them in the
-    /// tracking process. In one process they always run in the tracker.
+    /// Run the tracker's local mapping in the daemon's back-end process: each keyframe's
+    /// triangulations and local bundle adjustment (lossless: the tracker waits for each, the
+    /// run stays bit-identical; real time: the tracker triangulates itself, goes on and
+    /// applies the BA solution when it arrives). false keeps them in the tracking process.
+    /// In one process they always run in the tracker.
     pub local_ba_in_backend: bool,
     /// LighterGlue point pruning (LightGlue's `width_confidence`): points the network rates
     /// unmatchable leave after each layer. In (0, 1), or -1 to run every point through every

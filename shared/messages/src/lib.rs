@@ -578,10 +578,11 @@ pub enum Topic {
     Keyframes,
     /// `CorrectionMsg`, back end → tracking: the loop-closing verdict on each keyframe.
     Corrections,
-    /// `[f64]` a local bundle adjustment to solve, tracking → back end.
-    BaProblems,
-    /// `[f64]` its solution, back end → tracking.
-    BaSolutions,
+    /// `[f64]` a keyframe's local-mapping work (its triangulations, its local bundle
+    /// adjustment), tracking → back end.
+    MappingRequests,
+    /// `[f64]` the answer to each, back end → tracking.
+    MappingReplies,
     /// `BackendState`, back end → tracking (restore), monitors.
     Backend,
     /// `Progress`, every stage → supervisor and monitors.
@@ -606,8 +607,8 @@ impl Topic {
         Topic::MatchRequests,
         Topic::Keyframes,
         Topic::Corrections,
-        Topic::BaProblems,
-        Topic::BaSolutions,
+        Topic::MappingRequests,
+        Topic::MappingReplies,
         Topic::Backend,
         Topic::Progress,
         Topic::Control,
@@ -625,8 +626,8 @@ impl Topic {
             Topic::MatchRequests => "match_requests",
             Topic::Keyframes => "keyframes",
             Topic::Corrections => "corrections",
-            Topic::BaProblems => "ba_problems",
-            Topic::BaSolutions => "ba_solutions",
+            Topic::MappingRequests => "mapping_requests",
+            Topic::MappingReplies => "mapping_replies",
             Topic::Backend => "backend",
             Topic::Progress => "progress",
             Topic::Control => "control",
@@ -718,9 +719,9 @@ impl Services {
                 buffer: 4 * HISTORY,
                 safe_overflow: false,
             },
-            // requests answered at once: no history (a problem no one solved in time is
-            // solved by the tracker itself), never block the sender
-            Topic::BaProblems | Topic::BaSolutions => Qos {
+            // requests answered at once: no history (work no one did in time the tracker
+            // does itself), never block the sender
+            Topic::MappingRequests | Topic::MappingReplies => Qos {
                 history: 0,
                 buffer: 4,
                 safe_overflow: true,

@@ -12,7 +12,7 @@ use crate::common::{send_value, StageArgs, StageContext};
 use crate::frame_log::{read_lines, record, Recorder};
 use crate::inbox::Inbox;
 use crate::loop_closing::{LoopClosing, PosedFrame};
-use crate::remote_ba::BaServer;
+use crate::remote_mapping::MappingServer;
 use anyhow::{Context, Result};
 use std::path::Path;
 use std::time::Duration;
@@ -128,7 +128,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
         .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
         .create()
         .map_err(|e| MessageError::ipc("corrections publisher", e))?;
-    let mut local_ba = BaServer::open(&ctx, &args.out)?;
+    let mut local_mapping = MappingServer::open(&ctx, &args.out)?;
     let mut finished = rec.last.as_ref().is_some_and(|r| r.status == "end");
     let start = rec.last.as_ref().map_or(0, |r| r.seq + 1);
     let mut inbox: Inbox<PoseMsg> = Inbox::new(start, 1);
@@ -156,7 +156,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
     let mut waited_since: Option<std::time::Instant> = None;
     while ctx.wait() {
         // first what the tracker waits for
-        local_ba.serve()?;
+        local_mapping.serve()?;
         while let Some(s) = poses.receive().map_err(|e| MessageError::ipc("poses", e))? {
             let h = *s.user_header();
             h.check()?;
@@ -236,7 +236,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
             }
             changed = true;
             ctx.frame_done(&h, t_in, inbox.len());
-            local_ba.serve()?;
+            local_mapping.serve()?;
             if h.status() == Status::EndOfStream {
                 finish(&args.out, &mut rec, loops.as_ref())?;
                 finished = true;

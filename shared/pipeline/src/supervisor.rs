@@ -263,7 +263,8 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
         "trajectory.kitti.txt",
         crate::loop_closing::KEYFRAMES_FILE,
         "loops.json",
-        crate::remote_ba::LOG_FILE,
+        crate::remote_mapping::BA_LOG_FILE,
+        crate::remote_mapping::TRIANGULATION_LOG_FILE,
     ] {
         let _ = std::fs::remove_file(opts.out.join(f));
     }
@@ -280,12 +281,12 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
         services.header_topic::<MatchRequest>(&node, Topic::MatchRequests, true)?,
         services.plain_topic::<BackendState>(&node, Topic::Backend, true)?,
     );
-    // tracking and the back end's loop closing and local BA
+    // tracking and the back end's loop closing and local mapping
     let _mapping = (
         services.slice_topic::<f32>(&node, Topic::Keyframes, true)?,
         services.header_topic::<CorrectionMsg>(&node, Topic::Corrections, true)?,
-        services.slice_topic::<f64>(&node, Topic::BaProblems, true)?,
-        services.slice_topic::<f64>(&node, Topic::BaSolutions, true)?,
+        services.slice_topic::<f64>(&node, Topic::MappingRequests, true)?,
+        services.slice_topic::<f64>(&node, Topic::MappingReplies, true)?,
     );
     // the diagnostic views (lossy; stages publish on them only while someone listens)
     let _views = (

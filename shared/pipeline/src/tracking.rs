@@ -8,7 +8,7 @@
 use crate::common::{receive_features, send_value, stamp, StageArgs, StageContext};
 use crate::inbox::Inbox;
 use crate::loop_feedback::LoopFeedback;
-use crate::remote_ba::RemoteBa;
+use crate::remote_mapping::RemoteMapping;
 use anyhow::Result;
 use std::time::Duration;
 use supermvo_config::{IngestMode, PipelineConfig};
@@ -148,17 +148,18 @@ pub fn run(args: &StageArgs) -> Result<()> {
     let mut tracker = Tracker::new(seq.calib, tracker_config(&cfg));
     let mut ctx = StageContext::new(StageKind::Tracking, args.worker, &cfg)?;
     let gap = Duration::from_millis(cfg.gap_timeout_ms);
-    // the local BA in the back end: lossless, the tracker waits for it as it would for its
-    // own solve; in real time it goes on and applies each solution when it arrives
+    // the local mapping in the back end: lossless, the tracker waits for each keyframe's
+    // triangulations and BA as it would for its own; in real time it triangulates itself,
+    // goes on and applies each BA solution when it arrives
     let late_ba = match (cfg.local_ba_in_backend, cfg.mode) {
         (false, _) => None,
         (true, IngestMode::Lossless) => {
-            tracker.set_ba_solver(Box::new(RemoteBa::open(&ctx, gap)?));
+            tracker.set_mapping_solver(Box::new(RemoteMapping::open(&ctx, gap)?));
             None
         }
         (true, IngestMode::Realtime) => {
-            let (sender, late) = RemoteBa::open_deferred(&ctx)?;
-            tracker.set_ba_solver(Box::new(sender));
+            let (sender, late) = RemoteMapping::open_deferred(&ctx)?;
+            tracker.set_mapping_solver(Box::new(sender));
             Some(late)
         }
     };

@@ -36,16 +36,7 @@ pub struct LocalBa {
     pub huber: f64,
 }
 
-/// Where local bundle adjustments are solved when not in the tracker's own thread: the
-/// daemon's back-end process (`supermvo_pipeline::remote_ba`). A solver that solves at once
-/// must give exactly what [`LocalBa::solve`] gives here, so that a run does not depend on
-/// where it solved.
-pub trait BaSolver {
-    /// Solves `ba` in place with up to `iterations` iterations, or hands it off.
-    fn solve(&mut self, ba: &mut LocalBa, iterations: usize) -> BaOutcome;
-}
-
-/// What became of a local BA given to a [`BaSolver`].
+/// What became of a local BA given to a [`crate::mapping_solver::MappingSolver`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum BaOutcome {
     /// Solved in place: (initial cost, final cost), as [`LocalBa::solve`] returns.

@@ -2,6 +2,7 @@
 pub mod ba;
 pub mod loops;
 mod map;
+pub mod mapping_solver;
 pub mod pairs;
 pub mod pipeline;
 pub mod stage;

@@ -5,7 +5,9 @@
 //!
 //! Frames: keyframe poses are `T_cam_world`; landmark positions are in the world frame.
 
-use std::collections::BTreeMap;
+use crate::mapping_solver::TriangulationBatch;
+use std::cell::Cell;
+use std::collections::{BTreeMap, HashMap};
 use supermvo_geometry::essential::{triangulate_checked, Triangulated};
 use supermvo_geometry::{Mat3, Pose, Vec3};
 
@@ -61,6 +63,20 @@ pub(crate) struct Map {
     pub(crate) segment_start: usize,
     /// Focal length (pixels) that turns the 2 px triangulation gate into bearings.
     focal: f64,
+    /// Triangulations computed ahead, elsewhere, for the keyframe being inserted
+    /// ([`Map::prefetch`]), by the exact bits of their views.
+    prefetched: HashMap<ViewsKey, Option<Triangulated>>,
+    /// Triangulations answered from `prefetched`, and computed here while it was set.
+    prefetch_use: (Cell<usize>, Cell<usize>),
+}
+
+/// The exact bits of a point's views `(keyframe id, bearing)`.
+type ViewsKey = Vec<(usize, [u64; 3])>;
+
+fn views_key(obs: &[(usize, Vec3)]) -> ViewsKey {
+    obs.iter()
+        .map(|(k, b)| (*k, [b.x.to_bits(), b.y.to_bits(), b.z.to_bits()]))
+        .collect()
 }
 
 impl Map {
@@ -76,7 +92,62 @@ impl Map {
             keyframe_keypoints: BTreeMap::new(),
             segment_start: 0,
             focal,
+            prefetched: HashMap::new(),
+            prefetch_use: Default::default(),
         }
+    }
+
+    /// The triangulations of points with views `queries` `(keyframe id, bearing)`, as a
+    /// batch that a [`crate::mapping_solver::MappingSolver`] can compute elsewhere
+    /// (`None` when a query names an unknown keyframe).
+    pub(crate) fn triangulation_batch(
+        &self,
+        queries: Vec<Vec<(usize, Vec3)>>,
+    ) -> Option<TriangulationBatch> {
+        let mut slot: BTreeMap<usize, usize> = BTreeMap::new();
+        let mut poses = Vec::new();
+        let mut indexed = Vec::with_capacity(queries.len());
+        for views in queries {
+            let mut q = Vec::with_capacity(views.len());
+            for (k, b) in views {
+                let pose = *self.keyframe_poses.get(k)?;
+                let next = slot.len();
+                let i = *slot.entry(k).or_insert_with(|| {
+                    poses.push(pose);
+                    next
+                });
+                q.push((i, b));
+            }
+            indexed.push(q);
+        }
+        Some(TriangulationBatch {
+            poses,
+            queries: indexed,
+            max_error: self.max_error(),
+        })
+    }
+
+    /// Takes the answers to `queries` (computed elsewhere from [`Map::triangulation_batch`]
+    /// with the keyframe poses as they are now): until [`Map::end_prefetch`],
+    /// [`Map::triangulate_observations`] returns them for those exact views instead of
+    /// computing them again.
+    pub(crate) fn prefetch(
+        &mut self,
+        queries: &[Vec<(usize, Vec3)>],
+        answers: Vec<Option<Triangulated>>,
+    ) {
+        self.prefetched = queries.iter().map(|q| views_key(q)).zip(answers).collect();
+    }
+
+    /// Forgets the prefetched triangulations (the poses they used are about to change);
+    /// how many were used, and how many triangulations were computed here meanwhile.
+    pub(crate) fn end_prefetch(&mut self) -> (usize, usize) {
+        self.prefetched.clear();
+        (self.prefetch_use.0.take(), self.prefetch_use.1.take())
+    }
+
+    fn max_error(&self) -> f64 {
+        2.0 / self.focal
     }
 
     /// Adds a landmark with its keyframe observations `(keyframe id, bearing)` and the
@@ -143,11 +214,18 @@ impl Map {
     /// lies in front of every view and reprojects within 2 px in each (`None` otherwise, or
     /// when a keyframe is unknown).
     pub(crate) fn triangulate_observations(&self, obs: &[(usize, Vec3)]) -> Option<Triangulated> {
+        if !self.prefetched.is_empty() {
+            if let Some(answer) = self.prefetched.get(&views_key(obs)) {
+                self.prefetch_use.0.set(self.prefetch_use.0.get() + 1);
+                return *answer;
+            }
+            self.prefetch_use.1.set(self.prefetch_use.1.get() + 1);
+        }
         let views = obs
             .iter()
             .map(|(k, b)| self.keyframe_poses.get(*k).map(|p| (p.r, p.t, *b)))
             .collect::<Option<Vec<(Mat3, Vec3, Vec3)>>>()?;
-        triangulate_checked(&views, 2.0 / self.focal)
+        triangulate_checked(&views, self.max_error())
     }
     /// The world point of a track's keyframe observations when it lies in front of every
     /// view, reprojects within 2 px in each and has the configured parallax between the

@@ -1,6 +1,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
 //! The tracker's behaviour on synthetic features (the world in `world/`): frames between
-//! keyframes tracked without the matcher, a local BA solved elsewhere or applied late,
+//! keyframes tracked without the matcher, the local mapping run elsewhere or its BA applied
+//! late,
 //! frames dropped upstream or seeing nothing, a new map after a failure at the old map's
 //! scale, triangulation against the keyframe before the reference, frames seen while
 //! initialising.
@@ -33,29 +34,52 @@ fn frames_between_keyframes_are_tracked_without_the_matcher() {
     }
 }
 
-/// A local BA solved elsewhere (as the daemon's back end does) with the same solver gives
-/// the trajectory bit for bit, and every window goes through the solver.
+/// The local mapping run elsewhere (as the daemon's back end does: each keyframe's
+/// triangulations and its local BA) with the same solvers gives the trajectory bit for bit,
+/// every window goes through the solver, and so does every triangulation the keyframes need.
 #[test]
-fn a_local_ba_solved_elsewhere_gives_the_same_trajectory() {
-    struct Counting(Rc<Cell<usize>>);
-    impl BaSolver for Counting {
+fn local_mapping_run_elsewhere_gives_the_same_trajectory() {
+    type Count = Rc<Cell<(usize, usize)>>;
+    struct Counting(Count);
+    impl MappingSolver for Counting {
         fn solve(&mut self, ba: &mut LocalBa, iterations: usize) -> BaOutcome {
-            self.0.set(self.0.get() + 1);
+            let (bas, queries) = self.0.get();
+            self.0.set((bas + 1, queries));
             let (c0, c1) = ba.solve(iterations);
             BaOutcome::Solved(c0, c1)
         }
+        fn triangulate(
+            &mut self,
+            batch: &TriangulationBatch,
+        ) -> Option<Vec<Option<supermvo_geometry::essential::Triangulated>>> {
+            let (bas, queries) = self.0.get();
+            self.0.set((bas, queries + batch.queries.len()));
+            Some(batch.solve())
+        }
     }
-    let solved = Rc::new(Cell::new(0));
+    let solved: Count = Default::default();
     let mut counter = Some(Counting(solved.clone()));
+    let counts = Cell::new((0, 0));
     let cfg = TrackerConfig::default();
     let here = run_counted(0, 0.5, 0.1, cfg.clone(), Drive::default());
     let there = run_counted_with(0, (0.5, 0.1), cfg, Drive::default(), |_, t| {
         if let Some(c) = counter.take() {
-            t.set_ba_solver(Box::new(c));
+            t.set_mapping_solver(Box::new(c));
         }
+        counts.set(t.triangulation_counts());
     });
-    println!("{} local BAs solved elsewhere", solved.get());
-    assert!(solved.get() >= 5, "{} local BAs", solved.get());
+    let (bas, queries) = solved.get();
+    let (answered, computed_here) = counts.get();
+    println!("{bas} local BAs and {queries} triangulations sent elsewhere; {answered} used, {computed_here} computed here");
+    assert!(bas >= 5, "{bas} local BAs");
+    assert!(
+        answered >= 200,
+        "{answered} triangulations answered elsewhere"
+    );
+    assert_eq!(
+        computed_here, 0,
+        "every keyframe triangulation was asked for"
+    );
     assert_eq!(here.0, there.0);
     assert_eq!(here.3, there.3);
 }
@@ -71,7 +95,7 @@ fn a_local_ba_applied_frames_later_still_holds_the_scale() {
     /// `(frame asked, id, window)` of the windows handed off, and the frame now.
     type Queue = Rc<RefCell<Vec<(usize, u64, LocalBa)>>>;
     struct Deferring(Queue, Rc<Cell<usize>>, u64);
-    impl BaSolver for Deferring {
+    impl MappingSolver for Deferring {
         fn solve(&mut self, ba: &mut LocalBa, _iterations: usize) -> BaOutcome {
             self.2 += 1;
             self.0.borrow_mut().push((self.1.get(), self.2, ba.clone()));
@@ -87,7 +111,7 @@ fn a_local_ba_applied_frames_later_still_holds_the_scale() {
         let (mut sent, mut applied) = (0, 0);
         let (traj, ..) = run_counted_with(seed, (0.5, 0.1), cfg, Drive::default(), |k, t| {
             if let Some(s) = solver.take() {
-                t.set_ba_solver(Box::new(s));
+                t.set_mapping_solver(Box::new(s));
             }
             now.set(k);
             let (due, waiting) = std::mem::take(&mut *queue.borrow_mut())

@@ -42,10 +42,11 @@ pub(crate) struct PendingBa {
 }
 
 impl Tracker {
-    /// Solves the local BA with `solver` instead of in this thread (the daemon hands it to
-    /// the back-end process); the results must not depend on where it ran.
-    pub fn set_ba_solver(&mut self, solver: Box<dyn crate::ba::BaSolver>) {
-        self.ba_solver = Some(solver);
+    /// Runs the local mapping's triangulations and BA with `solver` instead of in this
+    /// thread (the daemon hands them to the back-end process); the results must not depend
+    /// on where they ran.
+    pub fn set_mapping_solver(&mut self, solver: Box<dyn crate::mapping_solver::MappingSolver>) {
+        self.mapping_solver = Some(solver);
     }
 
     /// The keyframes a local bundle adjustment optimises, in id order (`None`: too few
@@ -145,7 +146,7 @@ impl Tracker {
             observations,
             huber: 2.0 / self.focal(),
         };
-        let outcome = match self.ba_solver.as_mut() {
+        let outcome = match self.mapping_solver.as_mut() {
             Some(solver) => solver.solve(&mut ba, LOCAL_BA_ITERATIONS),
             None => {
                 let (c0, c1) = ba.solve(LOCAL_BA_ITERATIONS);

@@ -109,9 +109,13 @@ pub struct Tracker {
     /// Frames seen while initialising against the current reference, posed once the map
     /// exists.
     initialising: initialising_frames::InitialisingFrames,
-    /// Where the local BA is solved (`None`: here), and the window handed off, if any.
-    ba_solver: Option<Box<dyn crate::ba::BaSolver>>,
+    /// Where the local mapping's triangulations and BA run (`None`: here), and the window
+    /// handed off, if any.
+    mapping_solver: Option<Box<dyn crate::mapping_solver::MappingSolver>>,
     pending_ba: Option<local_ba::PendingBa>,
+    /// Keyframe triangulations answered by the mapping solver, and computed here although
+    /// one was set (it declined, or a view changed after it was asked).
+    triangulations: (usize, usize),
 }
 
 impl std::fmt::Debug for Tracker {
@@ -139,8 +143,9 @@ impl Tracker {
             reference_depths: None,
             last_frame: None,
             initialising: Default::default(),
-            ba_solver: None,
+            mapping_solver: None,
             pending_ba: None,
+            triangulations: (0, 0),
         }
     }
 
@@ -175,6 +180,12 @@ impl Tracker {
     /// features (`None` before the first frame and right after a loss).
     pub fn reference(&self) -> Option<(usize, &Features)> {
         self.keyframe.as_ref().map(|k| (k.frame, &k.features))
+    }
+
+    /// How many keyframe triangulations the mapping solver answered, and how many were
+    /// computed here although one was set (see [`Tracker::set_mapping_solver`]).
+    pub fn triangulation_counts(&self) -> (usize, usize) {
+        self.triangulations
     }
 
     /// Positions (world frame) of the local map's landmarks, for diagnostic views.
@@ -324,6 +335,9 @@ impl Tracker {
         });
         self.frames_since_keyframe = 0;
         self.triangulate_with_earlier_keyframes();
+        let (answered, here) = self.map.end_prefetch();
+        self.triangulations.0 += answered;
+        self.triangulations.1 += here;
         self.local_ba();
         self.prune_map();
     }

@@ -12,7 +12,8 @@ pub use std::rc::Rc;
 pub use supermvo_dataset::Calibration;
 pub use supermvo_geometry::{Mat3, Vec3};
 pub use supermvo_inference::{Features, Matches};
-pub use supermvo_vo::ba::{BaOutcome, BaSolver, LocalBa};
+pub use supermvo_vo::ba::{BaOutcome, LocalBa};
+pub use supermvo_vo::mapping_solver::{MappingSolver, TriangulationBatch};
 pub use supermvo_vo::tracker::{FrameMeta, Tracker, TrackerConfig};
 
 /// Whether the long statistical runs (the full tier) run: `tools/test.sh`, the README's test
