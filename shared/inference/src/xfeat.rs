@@ -142,25 +142,30 @@ impl XFeat {
 
 /// Resizes to `(out_w, out_h)` with bilinear interpolation and half-pixel centres (as
 /// `F.interpolate(mode="bilinear", align_corners=False)`), returning values in [0, 1].
+/// The columns' source pixels and weights are computed once, not once per row.
 pub fn resize_bilinear(img: &GrayImage, out_w: usize, out_h: usize) -> Vec<f32> {
     let (w, h) = (img.width, img.height);
     let sx = w as f32 / out_w as f32;
     let sy = h as f32 / out_h as f32;
-    let src = |x: usize, y: usize| img.data[y * w + x] as f32 / 255.0;
+    let grey: [f32; 256] = std::array::from_fn(|v| v as f32 / 255.0);
     let coord = |d: usize, s: f32, n: usize| -> (usize, usize, f32) {
         let c = ((d as f32 + 0.5) * s - 0.5).max(0.0);
         let i0 = (c.floor() as usize).min(n - 1);
         let i1 = (i0 + 1).min(n - 1);
         (i0, i1, c - i0 as f32)
     };
+    let columns: Vec<(usize, usize, f32)> = (0..out_w).map(|ox| coord(ox, sx, w)).collect();
     let mut out = vec![0.0f32; out_w * out_h];
-    for oy in 0..out_h {
+    for (oy, row) in out.chunks_exact_mut(out_w.max(1)).enumerate() {
         let (y0, y1, fy) = coord(oy, sy, h);
-        for ox in 0..out_w {
-            let (x0, x1, fx) = coord(ox, sx, w);
-            let top = src(x0, y0) * (1.0 - fx) + src(x1, y0) * fx;
-            let bot = src(x0, y1) * (1.0 - fx) + src(x1, y1) * fx;
-            out[oy * out_w + ox] = top * (1.0 - fy) + bot * fy;
+        let (r0, r1) = (
+            &img.data[y0 * w..(y0 + 1) * w],
+            &img.data[y1 * w..(y1 + 1) * w],
+        );
+        for (o, &(x0, x1, fx)) in row.iter_mut().zip(&columns) {
+            let top = grey[r0[x0] as usize] * (1.0 - fx) + grey[r0[x1] as usize] * fx;
+            let bot = grey[r1[x0] as usize] * (1.0 - fx) + grey[r1[x1] as usize] * fx;
+            *o = top * (1.0 - fy) + bot * fy;
         }
     }
     out
@@ -202,50 +207,77 @@ fn subpixel_offset(heat: &[f32], (w, h): (usize, usize), (x, y): (usize, usize))
     (dx, dy)
 }
 
-/// Post-processing of raw outputs into at most `top_k` features (see module docs).
-pub fn postprocess(raw: &XFeatRaw, image_size: (usize, usize), cfg: &XFeatConfig) -> Features {
-    let (hh, ww) = raw.input_size;
+/// The full-resolution heatmap (step 2): per 8x8 cell the softmax over its 65 logits, the
+/// dustbin dropped. The channels are walked one at a time over every cell (the logits are
+/// channel-major), each cell's maximum and sum taken in channel order.
+fn heatmap(logits: &[f32], (hh, ww): (usize, usize)) -> Vec<f32> {
     let (h8, w8) = (hh / 8, ww / 8);
     let cells = h8 * w8;
-    // 2. full-resolution heatmap
+    let channel = |c: usize| &logits[c * cells..(c + 1) * cells];
+    let mut max = vec![f32::NEG_INFINITY; cells];
+    for c in 0..65 {
+        for (m, &l) in max.iter_mut().zip(channel(c)) {
+            *m = m.max(l);
+        }
+    }
+    let mut e = vec![0.0f32; 65 * cells];
+    let mut sum = vec![0.0f32; cells];
+    for c in 0..65 {
+        let ec = &mut e[c * cells..(c + 1) * cells];
+        for (((ec, s), &l), &m) in ec.iter_mut().zip(&mut sum).zip(channel(c)).zip(&max) {
+            *ec = (l - m).exp();
+            *s += *ec;
+        }
+    }
     let mut heat = vec![0.0f32; hh * ww];
     for cy in 0..h8 {
-        for cx in 0..w8 {
-            let idx = cy * w8 + cx;
-            let mut m = f32::NEG_INFINITY;
-            for c in 0..65 {
-                m = m.max(raw.keypoint_logits[c * cells + idx]);
-            }
-            let mut e = [0.0f32; 65];
-            let mut sum = 0.0f32;
-            for (c, ec) in e.iter_mut().enumerate() {
-                *ec = (raw.keypoint_logits[c * cells + idx] - m).exp();
-                sum += *ec;
-            }
-            for r in 0..8 {
+        for r in 0..8 {
+            let row = &mut heat[(cy * 8 + r) * ww..(cy * 8 + r + 1) * ww];
+            for cx in 0..w8 {
+                let idx = cy * w8 + cx;
                 for q in 0..8 {
-                    heat[(cy * 8 + r) * ww + cx * 8 + q] = e[r * 8 + q] / sum;
+                    row[cx * 8 + q] = e[(r * 8 + q) * cells + idx] / sum[idx];
                 }
             }
         }
     }
-    // 3. 5x5 non-maximum suppression (separable max filter), row-major order
+    heat
+}
+
+/// The largest of the five values centred on each of `row`'s (the row's ends clamp the
+/// window), into `out`. The interior is one expression per value, which the compiler
+/// vectorises; the maximum is exact, so the result does not depend on the order.
+fn max5(row: &[f32], out: &mut [f32]) {
+    let n = row.len();
+    let clamped = |x: usize| {
+        let (a, b) = (x.saturating_sub(2), (x + 2).min(n - 1));
+        row[a..=b].iter().copied().fold(f32::NEG_INFINITY, f32::max)
+    };
+    if n < 5 {
+        out.iter_mut()
+            .enumerate()
+            .for_each(|(x, o)| *o = clamped(x));
+        return;
+    }
+    for (o, w) in out[2..n - 2].iter_mut().zip(row.windows(5)) {
+        *o = w[0].max(w[1]).max(w[2]).max(w[3]).max(w[4]);
+    }
+    for x in [0, 1, n - 2, n - 1] {
+        out[x] = clamped(x);
+    }
+}
+
+/// The 5x5 local maxima of `heat` above `threshold` (step 3), row-major.
+fn local_maxima(heat: &[f32], (hh, ww): (usize, usize), threshold: f32) -> Vec<(usize, usize)> {
     let mut rowmax = vec![0.0f32; hh * ww];
-    for y in 0..hh {
-        for x in 0..ww {
-            let (a, b) = (x.saturating_sub(2), (x + 2).min(ww - 1));
-            rowmax[y * ww + x] = heat[y * ww + a..=y * ww + b]
-                .iter()
-                .copied()
-                .fold(f32::NEG_INFINITY, f32::max);
-        }
+    for (row, out) in heat.chunks_exact(ww).zip(rowmax.chunks_exact_mut(ww)) {
+        max5(row, out);
     }
     let mut cand: Vec<(usize, usize)> = Vec::new();
     for y in 0..hh {
         let (a, b) = (y.saturating_sub(2), (y + 2).min(hh - 1));
-        for x in 0..ww {
-            let v = heat[y * ww + x];
-            if v <= cfg.detection_threshold {
+        for (x, &v) in heat[y * ww..(y + 1) * ww].iter().enumerate() {
+            if v <= threshold {
                 continue;
             }
             let local_max = (a..=b)
@@ -256,6 +288,42 @@ pub fn postprocess(raw: &XFeatRaw, image_size: (usize, usize), cfg: &XFeatConfig
             }
         }
     }
+    cand
+}
+
+/// The dense descriptors (channel-major, 64 channels) divided by each cell's L2 norm, laid
+/// out cell-major, so that sampling a cell reads its 64 values in a row.
+fn normalised_cells(dense: &[f32], cells: usize) -> Vec<f32> {
+    let mut norms = vec![0.0f32; cells];
+    for c in 0..64 {
+        for (n, &d) in norms.iter_mut().zip(&dense[c * cells..(c + 1) * cells]) {
+            *n += d.powi(2);
+        }
+    }
+    norms.iter_mut().for_each(|n| *n = n.sqrt().max(1e-12));
+    // transposed in blocks of 16 cells, so that reads and writes stay in a few cache lines
+    let mut out = vec![0.0f32; cells * 64];
+    for first in (0..cells).step_by(16) {
+        let last = (first + 16).min(cells);
+        for c in 0..64 {
+            let channel = &dense[c * cells + first..c * cells + last];
+            for ((i, &d), &n) in (first..last).zip(channel).zip(&norms[first..last]) {
+                out[i * 64 + c] = d / n;
+            }
+        }
+    }
+    out
+}
+
+/// Post-processing of raw outputs into at most `top_k` features (see module docs).
+pub fn postprocess(raw: &XFeatRaw, image_size: (usize, usize), cfg: &XFeatConfig) -> Features {
+    let (hh, ww) = raw.input_size;
+    let (h8, w8) = (hh / 8, ww / 8);
+    let cells = h8 * w8;
+    // 2. full-resolution heatmap
+    let heat = heatmap(raw.keypoint_logits, (hh, ww));
+    // 3. 5x5 non-maximum suppression (separable max filter), row-major order
+    let cand = local_maxima(&heat, (hh, ww), cfg.detection_threshold);
     // 4. scores: heatmap (nearest) x reliability (bilinear), grid_sample semantics
     let (wf, hf) = (ww as f32, hh as f32);
     let to_grid = |p: f32, n: f32, size: f32| (p / (n - 1.0)) * size - 0.5;
@@ -300,17 +368,8 @@ pub fn postprocess(raw: &XFeatRaw, image_size: (usize, usize), cfg: &XFeatConfig
     scored.sort_by(|a, b| b.0.total_cmp(&a.0));
     scored.truncate(cfg.top_k);
     scored.retain(|s| s.0 > 0.0);
-    // dense descriptors, L2-normalised per cell (divided by the cell's norm where sampled)
-    let dense = raw.descriptors;
-    let norms: Vec<f32> = (0..cells)
-        .map(|i| {
-            (0..64)
-                .map(|c| dense[c * cells + i].powi(2))
-                .sum::<f32>()
-                .sqrt()
-                .max(1e-12)
-        })
-        .collect();
+    // dense descriptors, L2-normalised per cell, sampled bicubically
+    let normalised = normalised_cells(raw.descriptors, cells);
     let (rw, rh) = (image_size.0 as f32 / wf, image_size.1 as f32 / hf);
     let mut out = Features {
         dim: 64,
@@ -337,8 +396,9 @@ pub fn postprocess(raw: &XFeatRaw, image_size: (usize, usize), cfg: &XFeatConfig
                 }
                 let wgt = wyj * wxi;
                 let base = yy as usize * w8 + xx as usize;
-                for (c, dc) in d.iter_mut().enumerate() {
-                    *dc += wgt * (dense[c * cells + base] / norms[base]);
+                let cell = &normalised[base * 64..(base + 1) * 64];
+                for (dc, &v) in d.iter_mut().zip(cell) {
+                    *dc += wgt * v;
                 }
             }
         }
@@ -395,6 +455,195 @@ impl Extractor for XFeat {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The straightforward forms the fast ones above must equal bit for bit.
+    mod reference {
+        use super::super::*;
+
+        /// Resizes to `(out_w, out_h)` with bilinear interpolation and half-pixel centres (as
+        /// `F.interpolate(mode="bilinear", align_corners=False)`), returning values in [0, 1].
+        pub(super) fn resize_bilinear(img: &GrayImage, out_w: usize, out_h: usize) -> Vec<f32> {
+            let (w, h) = (img.width, img.height);
+            let sx = w as f32 / out_w as f32;
+            let sy = h as f32 / out_h as f32;
+            let src = |x: usize, y: usize| img.data[y * w + x] as f32 / 255.0;
+            let coord = |d: usize, s: f32, n: usize| -> (usize, usize, f32) {
+                let c = ((d as f32 + 0.5) * s - 0.5).max(0.0);
+                let i0 = (c.floor() as usize).min(n - 1);
+                let i1 = (i0 + 1).min(n - 1);
+                (i0, i1, c - i0 as f32)
+            };
+            let mut out = vec![0.0f32; out_w * out_h];
+            for oy in 0..out_h {
+                let (y0, y1, fy) = coord(oy, sy, h);
+                for ox in 0..out_w {
+                    let (x0, x1, fx) = coord(ox, sx, w);
+                    let top = src(x0, y0) * (1.0 - fx) + src(x1, y0) * fx;
+                    let bot = src(x0, y1) * (1.0 - fx) + src(x1, y1) * fx;
+                    out[oy * out_w + ox] = top * (1.0 - fy) + bot * fy;
+                }
+            }
+            out
+        }
+
+        /// Post-processing of raw outputs into at most `top_k` features (see module docs).
+        pub(super) fn postprocess(
+            raw: &XFeatRaw,
+            image_size: (usize, usize),
+            cfg: &XFeatConfig,
+        ) -> Features {
+            let (hh, ww) = raw.input_size;
+            let (h8, w8) = (hh / 8, ww / 8);
+            let cells = h8 * w8;
+            // 2. full-resolution heatmap
+            let mut heat = vec![0.0f32; hh * ww];
+            for cy in 0..h8 {
+                for cx in 0..w8 {
+                    let idx = cy * w8 + cx;
+                    let mut m = f32::NEG_INFINITY;
+                    for c in 0..65 {
+                        m = m.max(raw.keypoint_logits[c * cells + idx]);
+                    }
+                    let mut e = [0.0f32; 65];
+                    let mut sum = 0.0f32;
+                    for (c, ec) in e.iter_mut().enumerate() {
+                        *ec = (raw.keypoint_logits[c * cells + idx] - m).exp();
+                        sum += *ec;
+                    }
+                    for r in 0..8 {
+                        for q in 0..8 {
+                            heat[(cy * 8 + r) * ww + cx * 8 + q] = e[r * 8 + q] / sum;
+                        }
+                    }
+                }
+            }
+            // 3. 5x5 non-maximum suppression (separable max filter), row-major order
+            let mut rowmax = vec![0.0f32; hh * ww];
+            for y in 0..hh {
+                for x in 0..ww {
+                    let (a, b) = (x.saturating_sub(2), (x + 2).min(ww - 1));
+                    rowmax[y * ww + x] = heat[y * ww + a..=y * ww + b]
+                        .iter()
+                        .copied()
+                        .fold(f32::NEG_INFINITY, f32::max);
+                }
+            }
+            let mut cand: Vec<(usize, usize)> = Vec::new();
+            for y in 0..hh {
+                let (a, b) = (y.saturating_sub(2), (y + 2).min(hh - 1));
+                for x in 0..ww {
+                    let v = heat[y * ww + x];
+                    if v <= cfg.detection_threshold {
+                        continue;
+                    }
+                    let local_max = (a..=b)
+                        .map(|yy| rowmax[yy * ww + x])
+                        .fold(f32::NEG_INFINITY, f32::max);
+                    if v == local_max {
+                        cand.push((x, y));
+                    }
+                }
+            }
+            // 4. scores: heatmap (nearest) x reliability (bilinear), grid_sample semantics
+            let (wf, hf) = (ww as f32, hh as f32);
+            let to_grid = |p: f32, n: f32, size: f32| (p / (n - 1.0)) * size - 0.5;
+            let sample_bilinear = |map: &[f32], mw: usize, mh: usize, ix: f32, iy: f32| -> f32 {
+                let (x0, y0) = (ix.floor(), iy.floor());
+                let (fx, fy) = (ix - x0, iy - y0);
+                let mut acc = 0.0;
+                for (dy, wy) in [(0i64, 1.0 - fy), (1, fy)] {
+                    for (dx, wx) in [(0i64, 1.0 - fx), (1, fx)] {
+                        let (xx, yy) = (x0 as i64 + dx, y0 as i64 + dy);
+                        if xx >= 0 && yy >= 0 && (xx as usize) < mw && (yy as usize) < mh {
+                            acc += wx * wy * map[yy as usize * mw + xx as usize];
+                        }
+                    }
+                }
+                acc
+            };
+            let mut scored: Vec<(f32, usize, usize)> = cand
+                .iter()
+                .map(|&(x, y)| {
+                    if x == 0 && y == 0 {
+                        return (-1.0, x, y); // the reference marks (0, 0) as padding
+                    }
+                    let nx = to_grid(x as f32, wf, wf).round_ties_even();
+                    let ny = to_grid(y as f32, hf, hf).round_ties_even();
+                    let hv = if nx >= 0.0 && ny >= 0.0 && (nx as usize) < ww && (ny as usize) < hh {
+                        heat[ny as usize * ww + nx as usize]
+                    } else {
+                        0.0
+                    };
+                    let rv = sample_bilinear(
+                        raw.reliability,
+                        w8,
+                        h8,
+                        to_grid(x as f32, wf, w8 as f32),
+                        to_grid(y as f32, hf, h8 as f32),
+                    );
+                    (hv * rv, x, y)
+                })
+                .collect();
+            // 5. top-k by score (stable: ties keep row-major order), positive scores only
+            scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+            scored.truncate(cfg.top_k);
+            scored.retain(|s| s.0 > 0.0);
+            // dense descriptors, L2-normalised per cell (divided by the cell's norm where sampled)
+            let dense = raw.descriptors;
+            let norms: Vec<f32> = (0..cells)
+                .map(|i| {
+                    (0..64)
+                        .map(|c| dense[c * cells + i].powi(2))
+                        .sum::<f32>()
+                        .sqrt()
+                        .max(1e-12)
+                })
+                .collect();
+            let (rw, rh) = (image_size.0 as f32 / wf, image_size.1 as f32 / hf);
+            let mut out = Features {
+                dim: 64,
+                image_size,
+                ..Default::default()
+            };
+            out.descriptors.reserve(scored.len() * 64);
+            for &(s, x, y) in &scored {
+                let ix = to_grid(x as f32, wf, w8 as f32);
+                let iy = to_grid(y as f32, hf, h8 as f32);
+                let (x0, y0) = (ix.floor() as i64, iy.floor() as i64);
+                let wx = cubic_weights(ix - x0 as f32);
+                let wy = cubic_weights(iy - y0 as f32);
+                let mut d = [0.0f32; 64];
+                for (j, wyj) in wy.iter().enumerate() {
+                    let yy = y0 - 1 + j as i64;
+                    if yy < 0 || yy as usize >= h8 {
+                        continue;
+                    }
+                    for (i, wxi) in wx.iter().enumerate() {
+                        let xx = x0 - 1 + i as i64;
+                        if xx < 0 || xx as usize >= w8 {
+                            continue;
+                        }
+                        let wgt = wyj * wxi;
+                        let base = yy as usize * w8 + xx as usize;
+                        for (c, dc) in d.iter_mut().enumerate() {
+                            *dc += wgt * (dense[c * cells + base] / norms[base]);
+                        }
+                    }
+                }
+                let n = d.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-12);
+                out.descriptors.extend(d.iter().map(|v| v / n));
+                let (dx, dy) = if cfg.subpixel {
+                    subpixel_offset(&heat, (ww, hh), (x, y))
+                } else {
+                    (0.0, 0.0)
+                };
+                out.keypoints
+                    .push([(x as f32 + dx) * rw, (y as f32 + dy) * rh]);
+                out.scores.push(s);
+            }
+            out
+        }
+    }
 
     #[test]
     fn subpixel_offset_recovers_a_gaussian_peak() {
@@ -487,5 +736,99 @@ mod tests {
         assert!((f.scores[0] - 0.5).abs() < 1e-3);
         let n: f32 = f.descriptor(0).iter().map(|v| v * v).sum();
         assert!((n - 1.0).abs() < 1e-5);
+    }
+
+    /// A deterministic sequence of values in [0, 1).
+    fn uniform(seed: u64, n: usize) -> Vec<f32> {
+        let mut x = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
+        (0..n)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                (x >> 40) as f32 / (1u64 << 24) as f32
+            })
+            .collect()
+    }
+
+    /// Bit patterns of everything a feature set holds.
+    fn bits(f: &Features) -> (Vec<[u32; 2]>, Vec<u32>, Vec<u32>) {
+        (
+            f.keypoints.iter().map(|k| k.map(f32::to_bits)).collect(),
+            f.scores.iter().map(|v| v.to_bits()).collect(),
+            f.descriptors.iter().map(|v| v.to_bits()).collect(),
+        )
+    }
+
+    /// The channel-wise heatmap, the row-wise suppression and the cell-major descriptors
+    /// give the reference's features bit for bit: random network outputs of several sizes,
+    /// peaked logits (many candidates), sub-pixel keypoints on and off, top-k above and
+    /// below the candidates.
+    #[test]
+    fn postprocessing_equals_the_straightforward_form_bit_for_bit() {
+        for (seed, (hh, ww)) in [(1u64, (64usize, 96usize)), (2, (96, 160)), (3, (352, 1216))] {
+            let cells = (hh / 8) * (ww / 8);
+            let logits: Vec<f32> = uniform(seed, 65 * cells)
+                .iter()
+                .enumerate()
+                .map(|(i, u)| {
+                    if i < 64 * cells {
+                        12.0 * u - 4.0
+                    } else {
+                        2.0 * u
+                    }
+                })
+                .collect();
+            let descriptors: Vec<f32> = uniform(seed + 10, 64 * cells)
+                .iter()
+                .map(|u| u - 0.5)
+                .collect();
+            let reliability = uniform(seed + 20, cells);
+            let raw = XFeatRaw {
+                input_size: (hh, ww),
+                descriptors: &descriptors,
+                keypoint_logits: &logits,
+                reliability: &reliability,
+            };
+            for (top_k, subpixel) in [(30, false), (1024, false), (1024, true), (100_000, true)] {
+                let cfg = XFeatConfig {
+                    top_k,
+                    subpixel,
+                    ..XFeatConfig::default()
+                };
+                let size = (ww * 5 / 4, hh * 9 / 8);
+                let fast = postprocess(&raw, size, &cfg);
+                let plain = reference::postprocess(&raw, size, &cfg);
+                assert!(!fast.keypoints.is_empty());
+                assert_eq!(bits(&fast), bits(&plain), "{hh}x{ww}, top {top_k}");
+            }
+        }
+    }
+
+    /// The resize with its columns computed once equals the per-pixel form bit for bit,
+    /// shrinking and enlarging, odd sizes included.
+    #[test]
+    fn the_resize_equals_the_straightforward_form_bit_for_bit() {
+        for (seed, (w, h), (ow, oh)) in [
+            (1u64, (1241usize, 376usize), (1216usize, 352usize)),
+            (2, (37, 23), (64, 32)),
+            (3, (100, 61), (32, 32)),
+            (4, (5, 3), (5, 3)),
+        ] {
+            let data = uniform(seed, w * h)
+                .iter()
+                .map(|u| (u * 256.0) as u8)
+                .collect();
+            let img = GrayImage::new(w, h, data).unwrap();
+            let fast: Vec<u32> = resize_bilinear(&img, ow, oh)
+                .iter()
+                .map(|v| v.to_bits())
+                .collect();
+            let plain: Vec<u32> = reference::resize_bilinear(&img, ow, oh)
+                .iter()
+                .map(|v| v.to_bits())
+                .collect();
+            assert_eq!(fast, plain, "{w}x{h} -> {ow}x{oh}");
+        }
     }
 }
