@@ -315,18 +315,24 @@ fn normalised_cells(dense: &[f32], cells: usize) -> Vec<f32> {
     out
 }
 
-/// Post-processing of raw outputs into at most `top_k` features (see module docs).
-pub fn postprocess(raw: &XFeatRaw, image_size: (usize, usize), cfg: &XFeatConfig) -> Features {
+/// A pixel coordinate `p` of an `n`-pixel side as `grid_sample` reads it on a map of `size`
+/// values (`align_corners = false`, the reference's normalisation by `n - 1`).
+fn to_grid(p: f32, n: f32, size: f32) -> f32 {
+    (p / (n - 1.0)) * size - 0.5
+}
+
+/// Steps 4 and 5: each candidate's score (heatmap, nearest, times reliability, bilinear,
+/// with `grid_sample` semantics) and the `top_k` best with a positive score, in a stable
+/// order (ties keep the row-major order).
+fn best_candidates(
+    raw: &XFeatRaw,
+    heat: &[f32],
+    cand: &[(usize, usize)],
+    top_k: usize,
+) -> Vec<(f32, usize, usize)> {
     let (hh, ww) = raw.input_size;
     let (h8, w8) = (hh / 8, ww / 8);
-    let cells = h8 * w8;
-    // 2. full-resolution heatmap
-    let heat = heatmap(raw.keypoint_logits, (hh, ww));
-    // 3. 5x5 non-maximum suppression (separable max filter), row-major order
-    let cand = local_maxima(&heat, (hh, ww), cfg.detection_threshold);
-    // 4. scores: heatmap (nearest) x reliability (bilinear), grid_sample semantics
     let (wf, hf) = (ww as f32, hh as f32);
-    let to_grid = |p: f32, n: f32, size: f32| (p / (n - 1.0)) * size - 0.5;
     let sample_bilinear = |map: &[f32], mw: usize, mh: usize, ix: f32, iy: f32| -> f32 {
         let (x0, y0) = (ix.floor(), iy.floor());
         let (fx, fy) = (ix - x0, iy - y0);
@@ -364,12 +370,52 @@ pub fn postprocess(raw: &XFeatRaw, image_size: (usize, usize), cfg: &XFeatConfig
             (hv * rv, x, y)
         })
         .collect();
-    // 5. top-k by score (stable: ties keep row-major order), positive scores only
     scored.sort_by(|a, b| b.0.total_cmp(&a.0));
-    scored.truncate(cfg.top_k);
+    scored.truncate(top_k);
     scored.retain(|s| s.0 > 0.0);
+    scored
+}
+
+/// Post-processing of raw outputs into at most `top_k` features (see module docs).
+pub fn postprocess(raw: &XFeatRaw, image_size: (usize, usize), cfg: &XFeatConfig) -> Features {
+    let (hh, ww) = raw.input_size;
+    let (h8, w8) = (hh / 8, ww / 8);
+    let cells = h8 * w8;
+    // 2. full-resolution heatmap
+    let heat = heatmap(raw.keypoint_logits, (hh, ww));
+    // 3. 5x5 non-maximum suppression (separable max filter), row-major order
+    let cand = local_maxima(&heat, (hh, ww), cfg.detection_threshold);
+    // 4-5. the best candidates by score
+    let scored = best_candidates(raw, &heat, &cand, cfg.top_k);
     // dense descriptors, L2-normalised per cell, sampled bicubically
     let normalised = normalised_cells(raw.descriptors, cells);
+    let read = |wgt: f32, cell: usize, d: &mut [f32; 64]| {
+        for (dc, &v) in d.iter_mut().zip(&normalised[cell * 64..(cell + 1) * 64]) {
+            *dc += wgt * v;
+        }
+    };
+    sampled_features(
+        raw.input_size,
+        image_size,
+        (&scored, &heat),
+        cfg.subpixel,
+        read,
+    )
+}
+
+/// The features of the `scored` keypoints (score, x, y on the network's `(hh, ww)` input):
+/// each descriptor sampled bicubically from the normalised dense map, `read(weight, cell,
+/// descriptor)` adding one cell's weighted values, then L2-normalised; the coordinates
+/// moved to the `heat` map's sub-pixel peak when asked, and scaled to `image_size`.
+fn sampled_features(
+    (hh, ww): (usize, usize),
+    image_size: (usize, usize),
+    (scored, heat): (&[(f32, usize, usize)], &[f32]),
+    subpixel: bool,
+    mut read: impl FnMut(f32, usize, &mut [f32; 64]),
+) -> Features {
+    let (h8, w8) = (hh / 8, ww / 8);
+    let (wf, hf) = (ww as f32, hh as f32);
     let (rw, rh) = (image_size.0 as f32 / wf, image_size.1 as f32 / hf);
     let mut out = Features {
         dim: 64,
@@ -377,7 +423,7 @@ pub fn postprocess(raw: &XFeatRaw, image_size: (usize, usize), cfg: &XFeatConfig
         ..Default::default()
     };
     out.descriptors.reserve(scored.len() * 64);
-    for &(s, x, y) in &scored {
+    for &(s, x, y) in scored {
         let ix = to_grid(x as f32, wf, w8 as f32);
         let iy = to_grid(y as f32, hf, h8 as f32);
         let (x0, y0) = (ix.floor() as i64, iy.floor() as i64);
@@ -394,18 +440,13 @@ pub fn postprocess(raw: &XFeatRaw, image_size: (usize, usize), cfg: &XFeatConfig
                 if xx < 0 || xx as usize >= w8 {
                     continue;
                 }
-                let wgt = wyj * wxi;
-                let base = yy as usize * w8 + xx as usize;
-                let cell = &normalised[base * 64..(base + 1) * 64];
-                for (dc, &v) in d.iter_mut().zip(cell) {
-                    *dc += wgt * v;
-                }
+                read(wyj * wxi, yy as usize * w8 + xx as usize, &mut d);
             }
         }
         let n = d.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-12);
         out.descriptors.extend(d.iter().map(|v| v / n));
-        let (dx, dy) = if cfg.subpixel {
-            subpixel_offset(&heat, (ww, hh), (x, y))
+        let (dx, dy) = if subpixel {
+            subpixel_offset(heat, (ww, hh), (x, y))
         } else {
             (0.0, 0.0)
         };
@@ -544,50 +585,7 @@ mod tests {
                     }
                 }
             }
-            // 4. scores: heatmap (nearest) x reliability (bilinear), grid_sample semantics
-            let (wf, hf) = (ww as f32, hh as f32);
-            let to_grid = |p: f32, n: f32, size: f32| (p / (n - 1.0)) * size - 0.5;
-            let sample_bilinear = |map: &[f32], mw: usize, mh: usize, ix: f32, iy: f32| -> f32 {
-                let (x0, y0) = (ix.floor(), iy.floor());
-                let (fx, fy) = (ix - x0, iy - y0);
-                let mut acc = 0.0;
-                for (dy, wy) in [(0i64, 1.0 - fy), (1, fy)] {
-                    for (dx, wx) in [(0i64, 1.0 - fx), (1, fx)] {
-                        let (xx, yy) = (x0 as i64 + dx, y0 as i64 + dy);
-                        if xx >= 0 && yy >= 0 && (xx as usize) < mw && (yy as usize) < mh {
-                            acc += wx * wy * map[yy as usize * mw + xx as usize];
-                        }
-                    }
-                }
-                acc
-            };
-            let mut scored: Vec<(f32, usize, usize)> = cand
-                .iter()
-                .map(|&(x, y)| {
-                    if x == 0 && y == 0 {
-                        return (-1.0, x, y); // the reference marks (0, 0) as padding
-                    }
-                    let nx = to_grid(x as f32, wf, wf).round_ties_even();
-                    let ny = to_grid(y as f32, hf, hf).round_ties_even();
-                    let hv = if nx >= 0.0 && ny >= 0.0 && (nx as usize) < ww && (ny as usize) < hh {
-                        heat[ny as usize * ww + nx as usize]
-                    } else {
-                        0.0
-                    };
-                    let rv = sample_bilinear(
-                        raw.reliability,
-                        w8,
-                        h8,
-                        to_grid(x as f32, wf, w8 as f32),
-                        to_grid(y as f32, hf, h8 as f32),
-                    );
-                    (hv * rv, x, y)
-                })
-                .collect();
-            // 5. top-k by score (stable: ties keep row-major order), positive scores only
-            scored.sort_by(|a, b| b.0.total_cmp(&a.0));
-            scored.truncate(cfg.top_k);
-            scored.retain(|s| s.0 > 0.0);
+            let scored = super::super::best_candidates(raw, &heat, &cand, cfg.top_k);
             // dense descriptors, L2-normalised per cell (divided by the cell's norm where sampled)
             let dense = raw.descriptors;
             let norms: Vec<f32> = (0..cells)
@@ -599,49 +597,18 @@ mod tests {
                         .max(1e-12)
                 })
                 .collect();
-            let (rw, rh) = (image_size.0 as f32 / wf, image_size.1 as f32 / hf);
-            let mut out = Features {
-                dim: 64,
-                image_size,
-                ..Default::default()
-            };
-            out.descriptors.reserve(scored.len() * 64);
-            for &(s, x, y) in &scored {
-                let ix = to_grid(x as f32, wf, w8 as f32);
-                let iy = to_grid(y as f32, hf, h8 as f32);
-                let (x0, y0) = (ix.floor() as i64, iy.floor() as i64);
-                let wx = cubic_weights(ix - x0 as f32);
-                let wy = cubic_weights(iy - y0 as f32);
-                let mut d = [0.0f32; 64];
-                for (j, wyj) in wy.iter().enumerate() {
-                    let yy = y0 - 1 + j as i64;
-                    if yy < 0 || yy as usize >= h8 {
-                        continue;
-                    }
-                    for (i, wxi) in wx.iter().enumerate() {
-                        let xx = x0 - 1 + i as i64;
-                        if xx < 0 || xx as usize >= w8 {
-                            continue;
-                        }
-                        let wgt = wyj * wxi;
-                        let base = yy as usize * w8 + xx as usize;
-                        for (c, dc) in d.iter_mut().enumerate() {
-                            *dc += wgt * (dense[c * cells + base] / norms[base]);
-                        }
-                    }
+            let read = |wgt: f32, base: usize, d: &mut [f32; 64]| {
+                for (c, dc) in d.iter_mut().enumerate() {
+                    *dc += wgt * (dense[c * cells + base] / norms[base]);
                 }
-                let n = d.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-12);
-                out.descriptors.extend(d.iter().map(|v| v / n));
-                let (dx, dy) = if cfg.subpixel {
-                    subpixel_offset(&heat, (ww, hh), (x, y))
-                } else {
-                    (0.0, 0.0)
-                };
-                out.keypoints
-                    .push([(x as f32 + dx) * rw, (y as f32 + dy) * rh]);
-                out.scores.push(s);
-            }
-            out
+            };
+            super::super::sampled_features(
+                raw.input_size,
+                image_size,
+                (&scored, &heat),
+                cfg.subpixel,
+                read,
+            )
         }
     }
 
