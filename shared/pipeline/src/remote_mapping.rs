@@ -168,10 +168,14 @@ impl MappingSolver for RemoteMapping {
         BaOutcome::Solved(before, after)
     }
 
-    /// Lossless: the back end's answers, waited for. Real time: `None` (the tracker
-    /// triangulates at once, so that the next frame can track the new landmarks).
+    /// Lossless only: in real time the tracker triangulates at once, so that the next frame
+    /// can track the new landmarks.
+    fn triangulates(&self) -> bool {
+        self.replies.is_some()
+    }
+
+    /// The back end's answers, waited for.
     fn triangulate(&mut self, batch: &TriangulationBatch) -> Option<Vec<Option<Triangulated>>> {
-        self.replies.as_ref()?;
         let id = self.send("triangulation", &encode_batch(batch))?;
         self.wait_for("triangulation", id, |v| {
             decode_answers(v, batch.queries.len())

@@ -29,15 +29,25 @@ impl TriangulationBatch {
     pub fn solve(&self) -> Vec<Option<Triangulated>> {
         self.queries
             .iter()
-            .map(|views| {
-                let views = views
-                    .iter()
-                    .map(|(k, b)| self.poses.get(*k).map(|p| (p.r, p.t, *b)))
-                    .collect::<Option<Vec<_>>>()?;
-                triangulate_checked(&views, self.max_error)
-            })
+            .map(|views| triangulate_views(|k| self.poses.get(k), views, self.max_error))
             .collect()
     }
+}
+
+/// The point that `views` `(keyframe, bearing)` triangulate to with the keyframes'
+/// `T_cam_world` from `pose` ([`triangulate_checked`] with the gate `max_error`; `None` when
+/// a keyframe has no pose). The one computation behind the tracker's own triangulations
+/// and a batch's, so the two agree bit for bit.
+pub(crate) fn triangulate_views<'a>(
+    pose: impl Fn(usize) -> Option<&'a Pose>,
+    views: &[(usize, Vec3)],
+    max_error: f64,
+) -> Option<Triangulated> {
+    let views = views
+        .iter()
+        .map(|(k, b)| pose(*k).map(|p| (p.r, p.t, *b)))
+        .collect::<Option<Vec<_>>>()?;
+    triangulate_checked(&views, max_error)
 }
 
 /// Where the tracker's local mapping runs (see the module docs). A solver that answers at
@@ -47,9 +57,16 @@ pub trait MappingSolver {
     /// Solves `ba` in place with up to `iterations` iterations, or hands it off.
     fn solve(&mut self, ba: &mut LocalBa, iterations: usize) -> BaOutcome;
 
+    /// Whether the solver takes a keyframe's triangulations at once (the tracker then hands
+    /// them over; otherwise it does not build them). The default: no, only the bundle
+    /// adjustment.
+    fn triangulates(&self) -> bool {
+        false
+    }
+
     /// Triangulates every query of `batch` (in order), or `None` when it cannot answer now:
-    /// the tracker then triangulates them itself, with the same result. The default
-    /// answers `None` (a solver that only takes the bundle adjustment).
+    /// the tracker then triangulates them itself, with the same result. Asked only of a
+    /// solver that [`MappingSolver::triangulates`]; the default answers `None`.
     fn triangulate(&mut self, batch: &TriangulationBatch) -> Option<Vec<Option<Triangulated>>> {
         let _ = batch;
         None

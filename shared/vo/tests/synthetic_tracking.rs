@@ -48,6 +48,9 @@ fn local_mapping_run_elsewhere_gives_the_same_trajectory() {
             let (c0, c1) = ba.solve(iterations);
             BaOutcome::Solved(c0, c1)
         }
+        fn triangulates(&self) -> bool {
+            true
+        }
         fn triangulate(
             &mut self,
             batch: &TriangulationBatch,

@@ -5,11 +5,11 @@
 //!
 //! Frames: keyframe poses are `T_cam_world`; landmark positions are in the world frame.
 
-use crate::mapping_solver::TriangulationBatch;
+use crate::mapping_solver::{triangulate_views, TriangulationBatch};
 use std::cell::Cell;
 use std::collections::{BTreeMap, HashMap};
-use supermvo_geometry::essential::{triangulate_checked, Triangulated};
-use supermvo_geometry::{Mat3, Pose, Vec3};
+use supermvo_geometry::essential::Triangulated;
+use supermvo_geometry::{Pose, Vec3};
 
 /// A map point with every keyframe observation `(keyframe id, bearing)` of it and the
 /// descriptor of its latest observation (for the local-map search).
@@ -102,14 +102,14 @@ impl Map {
     /// (`None` when a query names an unknown keyframe).
     pub(crate) fn triangulation_batch(
         &self,
-        queries: Vec<Vec<(usize, Vec3)>>,
+        queries: &[Vec<(usize, Vec3)>],
     ) -> Option<TriangulationBatch> {
         let mut slot: BTreeMap<usize, usize> = BTreeMap::new();
         let mut poses = Vec::new();
         let mut indexed = Vec::with_capacity(queries.len());
         for views in queries {
             let mut q = Vec::with_capacity(views.len());
-            for (k, b) in views {
+            for &(k, b) in views {
                 let pose = *self.keyframe_poses.get(k)?;
                 let next = slot.len();
                 let i = *slot.entry(k).or_insert_with(|| {
@@ -221,11 +221,7 @@ impl Map {
             }
             self.prefetch_use.1.set(self.prefetch_use.1.get() + 1);
         }
-        let views = obs
-            .iter()
-            .map(|(k, b)| self.keyframe_poses.get(*k).map(|p| (p.r, p.t, *b)))
-            .collect::<Option<Vec<(Mat3, Vec3, Vec3)>>>()?;
-        triangulate_checked(&views, self.max_error())
+        triangulate_views(|k| self.keyframe_poses.get(k), obs, self.max_error())
     }
     /// The world point of a track's keyframe observations when it lies in front of every
     /// view, reprojects within 2 px in each and has the configured parallax between the

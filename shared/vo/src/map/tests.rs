@@ -1,5 +1,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
 use super::*;
+use supermvo_geometry::essential::triangulate_checked;
+use supermvo_geometry::Mat3;
 
 const F: f64 = 700.0;
 

@@ -126,7 +126,7 @@ impl Tracker {
     }
 
     /// Hands the triangulations that the new keyframe `cur_id` will need to the mapping
-    /// solver, if one is set, and keeps its answers in the map: the observed landmarks'
+    /// solver, if one is set that takes them, and keeps its answers in the map: the observed landmarks'
     /// re-fits, the re-observations' fits and the pending tracks extended by the fresh
     /// matches (all the matches that may be fresh: a successful re-observation takes a few
     /// out). What it did not answer is triangulated here, with the same result.
@@ -138,7 +138,11 @@ impl Tracker {
         m: &Matches,
         (landmark, reobserve): (&[Option<usize>], &[(usize, usize)]),
     ) {
-        if self.mapping_solver.is_none() {
+        if !self
+            .mapping_solver
+            .as_ref()
+            .is_some_and(|s| s.triangulates())
+        {
             return;
         }
         let bearing_b = |b: usize| (cur_id, bearing(&self.calib, &cur.keypoints[b]));
@@ -160,7 +164,7 @@ impl Tracker {
             with_b(track.unwrap_or_else(first), b)
         });
         let queries: Vec<_> = observed.chain(reobserved).chain(tracks).collect();
-        let Some(batch) = self.map.triangulation_batch(queries.clone()) else {
+        let Some(batch) = self.map.triangulation_batch(&queries) else {
             return;
         };
         let answers = self
