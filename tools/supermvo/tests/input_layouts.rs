@@ -31,16 +31,6 @@ fn kitti_excerpt(src: &Path, root: &Path) -> (PathBuf, Vec<PathBuf>, Vec<String>
     (seq, images, times)
 }
 
-/// The intrinsics of KITTI 07's `calib.txt` as an ORB-SLAM3-style camera file.
-fn camera_yaml(src: &Path) -> String {
-    let calib = supermvo_dataset::Calibration::read_kitti(&src.join("calib.txt")).unwrap();
-    format!(
-        "%YAML:1.0\nCamera.type: \"PinHole\"\nCamera.fx: {}\nCamera.fy: {}\nCamera.cx: {}\nCamera.cy: {}\n\
-         Camera.k1: 0.0\nCamera.k2: 0.0\nCamera.p1: 0.0\nCamera.p2: 0.0\n",
-        calib.fx, calib.fy, calib.cx, calib.cy
-    )
-}
-
 fn trajectory(seq: &Path, out: &Path, extra: &[&str]) -> String {
     let r = common::supermvo(
         &[
@@ -87,7 +77,7 @@ fn every_input_layout_gives_the_kitti_runs_trajectory() {
         std::os::unix::fs::symlink(img, folder.join(format!("frame_{i}.png"))).unwrap();
     }
     std::fs::write(folder.join("times.txt"), times.join("\n") + "\n").unwrap();
-    std::fs::write(folder.join("camera.yaml"), camera_yaml(&src)).unwrap();
+    std::fs::write(folder.join("camera.yaml"), common::kitti_camera_yaml(&src)).unwrap();
     assert_eq!(
         trajectory(&folder, &root.join("out/folder"), &[]),
         reference
@@ -133,7 +123,7 @@ fn every_input_layout_gives_the_kitti_runs_trajectory() {
     }
     std::fs::write(tum.join("rgb.txt"), list).unwrap();
     let cam = root.join("kitti07.yaml");
-    std::fs::write(&cam, camera_yaml(&src)).unwrap();
+    std::fs::write(&cam, common::kitti_camera_yaml(&src)).unwrap();
     let tum_traj = trajectory(
         &tum,
         &root.join("out/tum"),
@@ -204,7 +194,7 @@ fn a_jpeg_folder_tracks() {
             .to_luma8();
         img.save(folder.join(format!("{i}.jpg"))).unwrap();
     }
-    std::fs::write(folder.join("camera.yaml"), camera_yaml(&src)).unwrap();
+    std::fs::write(folder.join("camera.yaml"), common::kitti_camera_yaml(&src)).unwrap();
     let traj = trajectory(&folder, &tmp.path().join("out"), &[]);
     // no times.txt: 10 Hz assumed
     let first = traj
@@ -266,7 +256,7 @@ fn a_video_gives_the_kitti_runs_trajectory() {
 
     let lossless = root.join("clip.mkv");
     encode(&kitti, &lossless, &["-c:v", "ffv1", "-pix_fmt", "gray"]);
-    std::fs::write(root.join("clip.yaml"), camera_yaml(&src)).unwrap();
+    std::fs::write(root.join("clip.yaml"), common::kitti_camera_yaml(&src)).unwrap();
     let video = trajectory(&lossless, &root.join("out/ffv1"), &[]);
     assert_eq!(poses(&video), poses(&reference));
     // presentation times of a 10 frames/s video
@@ -292,7 +282,7 @@ fn a_video_gives_the_kitti_runs_trajectory() {
         &["-c:v", "libx264", "-crf", "18", "-pix_fmt", "yuv420p"],
     );
     let cam = root.join("kitti07.yaml");
-    std::fs::write(&cam, camera_yaml(&src)).unwrap();
+    std::fs::write(&cam, common::kitti_camera_yaml(&src)).unwrap();
     let lossy = trajectory(
         &h264,
         &root.join("out/h264"),
@@ -317,7 +307,7 @@ fn a_video_gives_the_kitti_runs_trajectory() {
     );
     let broken = root.join("broken.mp4");
     std::fs::write(&broken, b"not a video").unwrap();
-    std::fs::write(root.join("broken.yaml"), camera_yaml(&src)).unwrap();
+    std::fs::write(root.join("broken.yaml"), common::kitti_camera_yaml(&src)).unwrap();
     common::expect_error(
         &[
             "run",

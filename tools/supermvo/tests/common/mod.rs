@@ -218,6 +218,17 @@ pub fn ffmpeg_ready() -> bool {
     ok
 }
 
+/// The intrinsics of a KITTI sequence's `calib.txt` (in `seq`) as an ORB-SLAM3-style camera
+/// file, for the same frames read as an image folder or a video.
+pub fn kitti_camera_yaml(seq: &Path) -> String {
+    let calib = supermvo_dataset::Calibration::read_kitti(&seq.join("calib.txt")).unwrap();
+    format!(
+        "%YAML:1.0\nCamera.type: \"PinHole\"\nCamera.fx: {}\nCamera.fy: {}\nCamera.cx: {}\nCamera.cy: {}\n\
+         Camera.k1: 0.0\nCamera.k2: 0.0\nCamera.p1: 0.0\nCamera.p2: 0.0\n",
+        calib.fx, calib.fy, calib.cx, calib.cy
+    )
+}
+
 /// The 12 numbers of every row of a KITTI trajectory file, exactly as written.
 pub fn kitti_rows(path: &Path) -> Vec<Vec<f64>> {
     std::fs::read_to_string(path)
