@@ -6,6 +6,7 @@
 //! "Video input"). The networks' results are cached for the run (`SUPERMVO_NETWORK_CACHE`),
 //! so each frame of either input passes the networks once, not once per seed.
 
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test code
 mod common;
 
 use std::path::Path;
