@@ -208,26 +208,6 @@ fn a_jpeg_folder_tracks() {
     assert!(traj.lines().count() >= FRAMES * 9 / 10, "{traj}");
 }
 
-/// `ffmpeg -framerate 10 -i DIR/%06d.png ARGS... OUT` on the excerpt's frames.
-fn encode(frames: &Path, out: &Path, args: &[&str]) {
-    let r = std::process::Command::new("ffmpeg")
-        .args([
-            "-hide_banner",
-            "-loglevel",
-            "error",
-            "-y",
-            "-framerate",
-            "10",
-            "-i",
-        ])
-        .arg(frames.join("image_0/%06d.png"))
-        .args(args)
-        .arg(out)
-        .output()
-        .unwrap();
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-}
-
 /// A video of the same frames, decoded by ffmpeg: losslessly encoded (FFV1, grey) it gives
 /// the KITTI run's poses bit for bit, at the video's presentation times; as H.264 (lossy,
 /// what cameras write) it tracks. The camera file lies beside the video, named after it.
@@ -255,7 +235,7 @@ fn a_video_gives_the_kitti_runs_trajectory() {
     };
 
     let lossless = root.join("clip.mkv");
-    encode(&kitti, &lossless, &["-c:v", "ffv1", "-pix_fmt", "gray"]);
+    common::encode_video(&kitti, &lossless, &["-c:v", "ffv1", "-pix_fmt", "gray"]);
     std::fs::write(root.join("clip.yaml"), common::kitti_camera_yaml(&src)).unwrap();
     let video = trajectory(&lossless, &root.join("out/ffv1"), &[]);
     assert_eq!(poses(&video), poses(&reference));
@@ -276,7 +256,7 @@ fn a_video_gives_the_kitti_runs_trajectory() {
     }
 
     let h264 = root.join("clip.mp4");
-    encode(
+    common::encode_video(
         &kitti,
         &h264,
         &["-c:v", "libx264", "-crf", "18", "-pix_fmt", "yuv420p"],

@@ -126,10 +126,11 @@ impl Tracker {
     }
 
     /// Hands the triangulations that the new keyframe `cur_id` will need to the mapping
-    /// solver, if one is set that takes them, and keeps its answers in the map: the observed landmarks'
-    /// re-fits, the re-observations' fits and the pending tracks extended by the fresh
-    /// matches (all the matches that may be fresh: a successful re-observation takes a few
-    /// out). What it did not answer is triangulated here, with the same result.
+    /// solver, if one is set that takes them, and keeps its answers in the map: the
+    /// observed landmarks' re-fits, the re-observations' fits and the pending tracks
+    /// extended by the fresh matches (all the matches that may be fresh: a successful
+    /// re-observation takes a few out). What it did not answer is triangulated here, with
+    /// the same result.
     fn prefetch_triangulations(
         &mut self,
         kf: &Keyframe,

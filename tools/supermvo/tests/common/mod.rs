@@ -165,20 +165,54 @@ pub fn synth(root: &Path, preset: &str) -> PathBuf {
 /// `supermvo run SEQ --mode inprocess -q --out OUT EXTRA...`, which must succeed; returns
 /// its report.
 pub fn run_inprocess(seq: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
-    let mut args = vec![
-        "run",
-        seq.to_str().expect("utf-8 path"),
-        "--mode",
-        "inprocess",
-        "-q",
-        "--out",
-        out.to_str().expect("utf-8 path"),
-    ];
-    args.extend(extra);
-    let r = supermvo(&args);
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    run_inprocess_with_env(seq, out, extra, &[])
+}
+
+/// [`run_inprocess`] with the environment variables `env` set for the run.
+pub fn run_inprocess_with_env(
+    seq: &Path,
+    out: &Path,
+    extra: &[&str],
+    env: &[(&str, &Path)],
+) -> serde_json::Value {
+    let r = Command::new(env!("CARGO_BIN_EXE_supermvo"))
+        .arg("run")
+        .arg(seq)
+        .args(["--mode", "inprocess", "-q", "--out"])
+        .arg(out)
+        .args(extra)
+        .envs(env.iter().copied())
+        .output()
+        .expect("run supermvo");
+    assert!(
+        r.status.success(),
+        "{}: {}",
+        seq.display(),
+        String::from_utf8_lossy(&r.stderr)
+    );
     let text = std::fs::read_to_string(out.join("report.json")).expect("report.json");
     serde_json::from_str(&text).expect("report.json is JSON")
+}
+
+/// `ffmpeg -framerate 10 -i SEQ/image_0/%06d.png ARGS... OUT`: a KITTI sequence's frames as
+/// a video, which must succeed.
+pub fn encode_video(seq: &Path, out: &Path, args: &[&str]) {
+    let r = Command::new("ffmpeg")
+        .args([
+            "-hide_banner",
+            "-loglevel",
+            "error",
+            "-y",
+            "-framerate",
+            "10",
+            "-i",
+        ])
+        .arg(seq.join("image_0/%06d.png"))
+        .args(args)
+        .arg(out)
+        .output()
+        .expect("run ffmpeg");
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
 }
 
 /// The folder `tools/python_tools.sh` installs the independent Python readers into (for
