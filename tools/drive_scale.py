@@ -10,6 +10,12 @@ trajectory's frame `i` is line `i` of both files; the distances are summed frame
 over frames that have a pose, so gaps do not count.
 
     python3 tools/drive_scale.py RUN_DIR/trajectory.kitti.txt GT.txt [--report RUN_DIR/report.json]
+                                 [--per-frames N]
+
+`--per-frames N` prints the same ratio for every N frames instead (where along the road the
+scale changes: on KITTI 00_long it steps at the turns' exits), with the ground truth's
+heading change over those frames and, with `--report`, how many of them became keyframes.
+`--self-test` checks both on constructed trajectories and exits.
 """
 import argparse
 import json
@@ -25,46 +31,121 @@ def centres(path):
     return out
 
 
+def headings(path):
+    """The ground truth's heading per frame (degrees, rotation about the camera's y axis)."""
+    out = []
+    with open(path) as f:
+        for line in f:
+            v = [float(x) for x in line.split()]
+            out.append(math.degrees(math.atan2(v[2], v[10])) if len(v) == 12 else None)
+    return out
+
+
+def posed_frames(est, n, report):
+    """The frames with a pose, only those `report` (report.json's `frames_detail`) posed."""
+    posed = [i for i in range(n) if est[i] is not None]
+    if report is None:
+        return posed
+    ok = {d["index"] for d in report if d.get("pose") is not None}
+    # frames seen while initialising, posed later with the frame that initialised
+    ok |= {late["index"] for d in report for late in d.get("backfilled", [])}
+    return [i for i in posed if i in ok]
+
+
+def ratio(est, gt, pairs):
+    """Estimated over true distance summed over `pairs` of frames, and the true distance."""
+    e = sum(math.dist(est[a], est[b]) for a, b in pairs)
+    t = sum(math.dist(gt[a], gt[b]) for a, b in pairs)
+    return (e / t if t > 0 else float("nan")), t
+
+
+def first_and_last(est, gt, steps, stretch):
+    """The ratio over the first and over the last `stretch` metres of true path."""
+    def take(seq):
+        out, acc = [], 0.0
+        for a, b in seq:
+            if acc >= stretch:
+                break
+            out.append((a, b))
+            acc += math.dist(gt[a], gt[b])
+        return out
+    return ratio(est, gt, take(steps)), ratio(est, gt, take(reversed(steps)))
+
+
+def per_frames(est, gt, heading, steps, n, keyframes=None):
+    """(first frame, ratio, heading change in degrees, keyframes or None) per `n` frames."""
+    out = []
+    last = steps[-1][1] if steps else 0
+    for start in range(0, last, n):
+        pairs = [(a, b) for a, b in steps if start <= a and b <= start + n]
+        if not pairs:
+            continue
+        s, _ = ratio(est, gt, pairs)
+        end = min(start + n, last)
+        turn = (heading[end] - heading[start] + 180.0) % 360.0 - 180.0
+        kf = None if keyframes is None else sum(1 for k in keyframes if start <= k < start + n)
+        out.append((start, s, turn, kf))
+    return out
+
+
+def self_test():
+    # a straight drive at 1 m a frame, estimated at scale 0.5 for 20 frames, then 0.6
+    gt = [(0.0, 0.0, float(i)) for i in range(41)]
+    est, z = [], 0.0
+    for i in range(41):
+        est.append((0.0, 0.0, z))
+        z += 0.5 if i < 20 else 0.6
+    steps = list(zip(range(41), range(1, 41)))
+    (s0, t0), (s1, t1) = first_and_last(est, gt, steps, 10.0)
+    assert abs(s0 - 0.5) < 1e-12 and abs(s1 - 0.6) < 1e-12 and t0 == t1 == 10.0, (s0, s1, t0, t1)
+    rows = per_frames(est, gt, [0.0] * 41, steps, 10, keyframes=[0, 3, 12, 35])
+    assert [round(r[1], 12) for r in rows] == [0.5, 0.5, 0.6, 0.6], rows
+    assert [r[3] for r in rows] == [2, 1, 0, 1], rows
+    # a quarter turn to the left over frames 10-20: the heading change of that window
+    heading = [0.0] * 10 + [9.0 * k for k in range(11)] + [90.0] * 20
+    assert abs(per_frames(est, gt, heading, steps, 10)[1][2] - 90.0) < 1e-12
+    # a frame without a pose drops its two steps, and the report can drop more
+    est[5] = None
+    assert posed_frames(est, 41, None) == [i for i in range(41) if i != 5]
+    report = [{"index": i, "pose": [0] * 12 if i != 7 else None, "backfilled": []} for i in range(41)]
+    assert 7 not in posed_frames(est, 41, report)
+    print("drive_scale: self-test passed")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("estimate")
-    ap.add_argument("ground_truth")
+    ap.add_argument("estimate", nargs="?")
+    ap.add_argument("ground_truth", nargs="?")
     ap.add_argument("--report", help="report.json of the run: only frames it says were posed count")
     ap.add_argument("--stretch", type=float, default=200.0)
+    ap.add_argument("--per-frames", type=int, metavar="N", help="the ratio per N frames instead")
+    ap.add_argument("--self-test", action="store_true")
     args = ap.parse_args()
+    if args.self_test:
+        return self_test()
+    if not (args.estimate and args.ground_truth):
+        ap.error("an estimate and a ground truth are needed (or --self-test)")
+    if args.per_frames is not None and args.per_frames < 1:
+        ap.error(f"--per-frames {args.per_frames}: give a number of frames of at least 1")
     est, gt = centres(args.estimate), centres(args.ground_truth)
     n = min(len(est), len(gt))
-    posed = [i for i in range(n) if est[i] is not None]
+    detail = None
     if args.report:
         with open(args.report) as f:
             detail = json.load(f)["frames_detail"]
-        ok = {d["index"] for d in detail if d.get("pose") is not None}
-        # frames seen while initialising, posed later with the frame that initialised
-        ok |= {late["index"] for d in detail for late in d.get("backfilled", [])}
-        posed = [i for i in posed if i in ok]
+    posed = posed_frames(est, n, detail)
     steps = list(zip(posed, posed[1:]))
-    dist = math.dist
-
-    def ratio(pairs):
-        e = sum(dist(est[a], est[b]) for a, b in pairs)
-        t = sum(dist(gt[a], gt[b]) for a, b in pairs)
-        return e / t, t
-
-    first, acc = [], 0.0
-    for a, b in steps:
-        if acc >= args.stretch:
-            break
-        first.append((a, b))
-        acc += dist(gt[a], gt[b])
-    last, acc = [], 0.0
-    for a, b in reversed(steps):
-        if acc >= args.stretch:
-            break
-        last.append((a, b))
-        acc += dist(gt[a], gt[b])
-    (s0, t0), (s1, t1) = ratio(first), ratio(last)
-    total = sum(dist(gt[a], gt[b]) for a, b in steps)
+    total = sum(math.dist(gt[a], gt[b]) for a, b in steps)
     print(f"frames posed {len(posed)} of {n}, true path {total:.0f} m")
+    if args.per_frames:
+        keyframes = None if detail is None else [d["index"] for d in detail if d.get("keyframe")]
+        heading = headings(args.ground_truth)
+        print("frames      est / true   heading change (deg)" + ("   keyframes" if keyframes else ""))
+        for start, s, turn, kf in per_frames(est, gt, heading, steps, args.per_frames, keyframes):
+            line = f"{start:5d}-{start + args.per_frames - 1:<5d} {s:10.4f}   {turn:+8.1f}"
+            print(line + (f"   {kf:9d}" if kf is not None else ""))
+        return
+    (s0, t0), (s1, t1) = first_and_last(est, gt, steps, args.stretch)
     print(f"scale first {t0:.0f} m {s0:.4f}, last {t1:.0f} m {s1:.4f}, last / first {s1 / s0:.4f} "
           f"({100 * (s1 / s0 - 1):+.1f} %)")
 

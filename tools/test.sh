@@ -18,5 +18,7 @@ python3 tools/models/test_superpoint_superglue.py
 python3 tools/models/test_aliked_lightglue.py
 # the landmark depth check against a ground truth (docs/vo.md), on constructed landmarks
 python3 tools/landmark_depth_check.py --self-test
+# the scale per stretch and per N frames of a run (docs/decisions), on constructed drives
+python3 tools/drive_scale.py --self-test
 # the vo crate's long statistical runs too (plain `cargo test` skips them, saying so)
 SUPERMVO_LONG_TESTS=1 cargo test --workspace --release "$@"
