@@ -20,6 +20,7 @@ heading change over those frames and, with `--report`, how many of them became k
 import argparse
 import json
 import math
+import sys
 
 
 def centres(path):
@@ -127,12 +128,16 @@ def main():
         ap.error("an estimate and a ground truth are needed (or --self-test)")
     if args.per_frames is not None and args.per_frames < 1:
         ap.error(f"--per-frames {args.per_frames}: give a number of frames of at least 1")
-    est, gt = centres(args.estimate), centres(args.ground_truth)
+    try:
+        est, gt = centres(args.estimate), centres(args.ground_truth)
+        detail = None
+        if args.report:
+            with open(args.report) as f:
+                detail = json.load(f)["frames_detail"]
+    except (OSError, ValueError, KeyError) as e:
+        sys.exit(f"drive_scale: cannot read the inputs ({e}); give a KITTI trajectory, its "
+                 "ground truth and the run's report.json")
     n = min(len(est), len(gt))
-    detail = None
-    if args.report:
-        with open(args.report) as f:
-            detail = json.load(f)["frames_detail"]
     posed = posed_frames(est, n, detail)
     steps = list(zip(posed, posed[1:]))
     total = sum(math.dist(gt[a], gt[b]) for a, b in steps)
