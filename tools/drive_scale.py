@@ -23,23 +23,20 @@ import math
 import sys
 
 
-def centres(path):
-    out = []
+def read_poses(path):
+    """Each line's 12 numbers (a KITTI 3x4 `T_world_cam`), or None where a line has not 12."""
     with open(path) as f:
-        for line in f:
-            v = [float(x) for x in line.split()]
-            out.append((v[3], v[7], v[11]) if len(v) == 12 else None)
-    return out
+        rows = [[float(x) for x in line.split()] for line in f]
+    return [v if len(v) == 12 else None for v in rows]
 
 
-def headings(path):
-    """The ground truth's heading per frame (degrees, rotation about the camera's y axis)."""
-    out = []
-    with open(path) as f:
-        for line in f:
-            v = [float(x) for x in line.split()]
-            out.append(math.degrees(math.atan2(v[2], v[10])) if len(v) == 12 else None)
-    return out
+def centre(v):
+    return None if v is None else (v[3], v[7], v[11])
+
+
+def heading(v):
+    """Degrees of rotation about the camera's y axis."""
+    return None if v is None else math.degrees(math.atan2(v[2], v[10]))
 
 
 def posed_frames(est, n, report):
@@ -75,12 +72,14 @@ def first_and_last(est, gt, steps, stretch):
 
 def per_frames(est, gt, heading, steps, n, keyframes=None):
     """(first frame, ratio, heading change in degrees, keyframes or None) per `n` frames."""
+    windows = {}
+    for a, b in steps:
+        # a step counts in the window it starts in, when it also ends there
+        if b <= (a // n + 1) * n:
+            windows.setdefault(a // n * n, []).append((a, b))
     out = []
     last = steps[-1][1] if steps else 0
-    for start in range(0, last, n):
-        pairs = [(a, b) for a, b in steps if start <= a and b <= start + n]
-        if not pairs:
-            continue
+    for start, pairs in sorted(windows.items()):
         s, _ = ratio(est, gt, pairs)
         end = min(start + n, last)
         turn = (heading[end] - heading[start] + 180.0) % 360.0 - 180.0
@@ -129,7 +128,9 @@ def main():
     if args.per_frames is not None and args.per_frames < 1:
         ap.error(f"--per-frames {args.per_frames}: give a number of frames of at least 1")
     try:
-        est, gt = centres(args.estimate), centres(args.ground_truth)
+        est = [centre(v) for v in read_poses(args.estimate)]
+        gt_poses = read_poses(args.ground_truth)
+        gt = [centre(v) for v in gt_poses]
         detail = None
         if args.report:
             with open(args.report) as f:
@@ -144,9 +145,10 @@ def main():
     print(f"frames posed {len(posed)} of {n}, true path {total:.0f} m")
     if args.per_frames:
         keyframes = None if detail is None else [d["index"] for d in detail if d.get("keyframe")]
-        heading = headings(args.ground_truth)
-        print("frames      est / true   heading change (deg)" + ("   keyframes" if keyframes else ""))
-        for start, s, turn, kf in per_frames(est, gt, heading, steps, args.per_frames, keyframes):
+        headings = [heading(v) for v in gt_poses]
+        print("frames      est / true   heading change (deg)"
+              + ("   keyframes" if keyframes is not None else ""))
+        for start, s, turn, kf in per_frames(est, gt, headings, steps, args.per_frames, keyframes):
             line = f"{start:5d}-{start + args.per_frames - 1:<5d} {s:10.4f}   {turn:+8.1f}"
             print(line + (f"   {kf:9d}" if kf is not None else ""))
         return
