@@ -23,6 +23,10 @@ same ones.
                                 [--seeds 0,1,2] [--jobs 2] [--peer=ARGS] [--peer-bin PATH]
                                 [-- ARGS]
 
+`--lens-k1 K` gives every sequence a camera file (`camera.yaml` beside `calib.txt`) with the
+clip's own intrinsics and the radial coefficient K, so the tracker undistorts the keypoints
+with it: a lens-model study (docs/decisions/2026-12-07-kitti-lens-residual-and-turn-scale.md).
+
 `--seeds` runs every sequence with each RANSAC seed and reports the run with the median
 APE; `--jobs` runs that many at once (for accuracy; timing needs one at a time). With
 `SUPERMVO_NETWORK_CACHE=DIR` the in-process runs keep the networks' results in DIR, so a
@@ -58,12 +62,14 @@ def image_target(path):
     return path
 
 
-def subsample(clip, stride, root):
-    """A KITTI-layout copy of `clip` with every `stride`-th frame, as links; returns its dir."""
+def subsample(clip, stride, root, lens_k1=None):
+    """A KITTI-layout copy of `clip` with every `stride`-th frame, as links; returns its dir.
+    With `lens_k1`, the copy also gets a camera file with that radial coefficient."""
     src = os.path.join(KITTI, "sequences", clip)
     images = sorted(os.listdir(os.path.join(src, "image_0")))
     targets = [image_target(os.path.join(src, "image_0", i)) for i in images]
-    if stride == 1 and all(t == os.path.join(src, "image_0", i) for t, i in zip(targets, images)):
+    plain = all(t == os.path.join(src, "image_0", i) for t, i in zip(targets, images))
+    if stride == 1 and plain and lens_k1 is None:
         return src
     name = f"{clip}_every{stride}"
     dst = os.path.join(root, "sequences", name)
@@ -84,7 +90,29 @@ def subsample(clip, stride, root):
         f.writelines(times[i] for i in kept)
     with open(os.path.join(root, "poses", f"{name}.txt"), "w") as f:
         f.writelines(poses[i] for i in kept)
+    if lens_k1 is not None:
+        write_camera_file(dst, targets[0], lens_k1)
     return dst
+
+
+def write_camera_file(seq, image, k1):
+    """`camera.yaml` in `seq`: the intrinsics of its calib.txt (P0) and radial coefficient
+    `k1` (ORB-SLAM3's layout, which `supermvo run` reads beside calib.txt)."""
+    with open(os.path.join(seq, "calib.txt")) as f:
+        p0 = next((line.split()[1:] for line in f if line.startswith("P0:")), None)
+    if p0 is None or len(p0) != 12:
+        sys.exit(f"clip_study: {seq}/calib.txt has no P0 line of 12 numbers")
+    fx, cx, fy, cy = (float(p0[i]) for i in (0, 2, 5, 6))
+    with open(image, "rb") as f:
+        head = f.read(24)
+    if head[:8] != b"\x89PNG\r\n\x1a\n":
+        sys.exit(f"clip_study: {image} is not a PNG; --lens-k1 reads the image size from it")
+    width, height = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    with open(os.path.join(seq, "camera.yaml"), "w") as f:
+        f.write(f"%YAML:1.0\nCamera.type: \"PinHole\"\nCamera.width: {width}\n"
+                f"Camera.height: {height}\nCamera.fx: {fx!r}\nCamera.fy: {fy!r}\n"
+                f"Camera.cx: {cx!r}\nCamera.cy: {cy!r}\nCamera.k1: {k1!r}\nCamera.k2: 0.0\n"
+                "Camera.p1: 0.0\nCamera.p2: 0.0\nCamera.k3: 0.0\n")
 
 
 def run_one(binary, seq, out, extra):
@@ -123,6 +151,7 @@ def main():
     ap.add_argument("--peer-bin", help="build that runs the peer (default: --bin)")
     ap.add_argument("--seeds", default="0", help="RANSAC seeds, comma-separated; each row is the median run")
     ap.add_argument("--jobs", type=int, default=1, help="runs at once (accuracy studies; not with --peer)")
+    ap.add_argument("--lens-k1", type=float, help="radial coefficient k1 of a camera file given to every sequence")
     ap.add_argument("extra", nargs="*", help="arguments passed on to every `supermvo run`")
     args = ap.parse_args()
     KITTI = os.path.abspath(args.kitti)
@@ -149,7 +178,7 @@ def main():
     print(header, flush=True)
     fmt = lambda v, f: "–" if v is None else format(v, f)
     with tempfile.TemporaryDirectory() as tmp:
-        tasks = [(c, s, subsample(c, s, tmp)) for c in clips for s in strides]
+        tasks = [(c, s, subsample(c, s, tmp, args.lens_k1)) for c in clips for s in strides]
 
         def one(task, seed):
             c, s, seq = task
