@@ -211,6 +211,11 @@ pub struct PipelineConfig {
     /// The frame's final robust pose refinement gives no weight to a landmark match whose
     /// error exceeds this many times the PnP gate (2 px), [1, 10].
     pub robust_cutoff: f64,
+    /// After every local BA, read the radial coefficient its observations ask for beyond
+    /// the calibration, and report the run's information-weighted mean (`supermvo run` in
+    /// process: a summary line and `lens_residual` in report.json). A diagnostic of the
+    /// lens model; it changes no pose.
+    pub lens_check: bool,
     /// Camera file (ORB-SLAM3 / OpenCV YAML or EuRoC `sensor.yaml`) with the intrinsics and
     /// lens distortion of the frames; replaces KITTI's `calib.txt` and EuRoC's own
     /// `sensor.yaml`, and is needed by TUM and image-folder sequences without `camera.yaml`.
@@ -309,6 +314,7 @@ impl Default for PipelineConfig {
             reinitialise_at_map_scale: true,
             covisible_triangulation: 0,
             robust_cutoff: 3.0,
+            lens_check: false,
             camera: None,
             undistort: Undistort::Keypoints,
             match_every_frame: true,

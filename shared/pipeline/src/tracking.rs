@@ -38,6 +38,7 @@ pub fn tracker_config(cfg: &PipelineConfig) -> TrackerConfig {
         covisible_triangulation_keyframes: cfg.covisible_triangulation,
         robust_cutoff_factor: cfg.robust_cutoff,
         match_every_frame: cfg.match_every_frame,
+        lens_check: cfg.lens_check,
         ..TrackerConfig::default()
     }
     .with_seed(cfg.seed);

@@ -235,13 +235,19 @@ impl LocalBa {
             .sum()
     }
 
-    /// Runs up to `iterations` LM iterations; returns (initial cost, final cost).
-    pub fn solve(&mut self, iterations: usize) -> (f64, f64) {
+    /// The window over its free keyframes: each one's slot among them.
+    fn free_slots(&self) -> (Vec<usize>, Vec<usize>) {
         let free: Vec<usize> = (0..self.poses.len()).filter(|&k| !self.fixed[k]).collect();
         let mut slot = vec![usize::MAX; self.poses.len()];
         for (s, &k) in free.iter().enumerate() {
             slot[k] = s;
         }
+        (free, slot)
+    }
+
+    /// Runs up to `iterations` LM iterations; returns (initial cost, final cost).
+    pub fn solve(&mut self, iterations: usize) -> (f64, f64) {
+        let (free, slot) = self.free_slots();
         let start = (
             std::mem::take(&mut self.poses),
             std::mem::take(&mut self.points),
@@ -256,6 +262,107 @@ impl LocalBa {
         (self.poses, self.points) = (poses, points);
         (run.initial_error, run.final_error)
     }
+}
+
+impl LocalBa {
+    /// What the window's observations say about the lens: the radial coefficient `k1` (of
+    /// normalised coordinates, `x (1 + k1 |x|^2)`) that they ask for beyond the lens they
+    /// were undistorted with, at the current state (after [`LocalBa::solve`]). One
+    /// Gauss-Newton step on `k1` with the free keyframes and the points re-optimised (their
+    /// Schur complement), under the same robust weights. `None` when the window does not
+    /// determine it.
+    pub fn radial_residual(&self) -> Option<RadialResidual> {
+        let (free, slot) = self.free_slots();
+        let mut window = Window {
+            ba: self,
+            slot,
+            free,
+        };
+        let state = (self.poses.clone(), self.points.clone());
+        let normal = window.linearize(&state)?;
+        let coupling = self.radial_coupling(&window.slot, &normal);
+        // H^-1 g and H^-1 H_xk through the window's own Schur solver (it returns -H^-1 g)
+        let step = window.solve(&normal, 0.0)?;
+        let column = Normal {
+            gc: coupling.camera.clone(),
+            gp: coupling.point.clone(),
+            ..normal
+        };
+        let response = window.solve(&column, 0.0)?;
+        let along = |s: &Step| {
+            coupling.camera.dot(&s.cameras)
+                + coupling
+                    .point
+                    .iter()
+                    .zip(&s.points)
+                    .map(|(a, b)| a.dot(b))
+                    .sum::<f64>()
+        };
+        let information = coupling.hkk + along(&response);
+        let gradient = coupling.gk + along(&step);
+        (information > 0.0 && coupling.observations > 0).then(|| RadialResidual {
+            k1: -gradient / information,
+            information,
+            residual_variance: coupling.weighted_sq / (2.0 * coupling.observations as f64),
+        })
+    }
+
+    /// The `k1` row of the window's normal equations at its current state.
+    fn radial_coupling(&self, slot: &[usize], normal: &Normal) -> RadialCoupling {
+        let kernel = Kernel::Huber(self.huber);
+        let mut c = RadialCoupling {
+            camera: DVector::zeros(normal.gc.len()),
+            point: vec![Vector3::zeros(); self.points.len()],
+            ..Default::default()
+        };
+        for o in &self.observations {
+            let Pose { r, t } = &self.poses[o.kf];
+            let Some(lin) = reprojection(r, t, &self.points[o.point], &o.bearing) else {
+                continue;
+            };
+            let e = lin.residual;
+            let w = kernel.weight(e.norm_squared());
+            // the projection x = (e + observed) scaled by 1 + k1 |x|^2: d/dk1 = x |x|^2
+            let x = nalgebra::Vector2::new(
+                e.x + o.bearing.x / o.bearing.z,
+                e.y + o.bearing.y / o.bearing.z,
+            );
+            let jk = x * x.norm_squared();
+            c.hkk += w * jk.norm_squared();
+            c.gk += w * jk.dot(&e);
+            c.weighted_sq += w * e.norm_squared();
+            c.observations += 1;
+            c.point[o.point] += w * lin.d_point.transpose() * jk;
+            if slot[o.kf] != usize::MAX {
+                c.camera
+                    .fixed_rows_mut::<6>(slot[o.kf] * 6)
+                    .add_assign(&(w * lin.d_pose.transpose() * jk));
+            }
+        }
+        c
+    }
+}
+
+/// The `k1` row of a window's normal equations.
+#[derive(Default)]
+struct RadialCoupling {
+    camera: DVector<f64>,
+    point: Vec<Vector3<f64>>,
+    hkk: f64,
+    gk: f64,
+    weighted_sq: f64,
+    observations: usize,
+}
+
+/// A window's reading of the lens ([`LocalBa::radial_residual`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RadialResidual {
+    /// The radial coefficient the window asks for (normalised coordinates).
+    pub k1: f64,
+    /// Its information (the Schur complement of the normal equations, normalised units).
+    pub information: f64,
+    /// The weighted squared residual per coordinate (normalised units squared).
+    pub residual_variance: f64,
 }
 
 #[cfg(test)]
@@ -322,6 +429,67 @@ mod tests {
         for (k, Pose { r, t }) in ba.poses.iter().enumerate() {
             assert!(supermvo_geometry::rotation_angle(&(r.transpose() * poses[k].r)) < 1e-6);
             assert!((t - poses[k].t).norm() < 1e-5, "pose {k}");
+        }
+    }
+
+    /// A turning window observed through a lens with radial coefficient `k1`.
+    fn turning_window(k1: f64) -> LocalBa {
+        let poses: Vec<Pose> = (0..6)
+            .map(|k| {
+                let yaw = 0.08 * k as f64;
+                let r = so3_exp(&Vec3::new(0.0, yaw, 0.0));
+                let centre = Vec3::new(0.3 * k as f64, 0.0, 1.0 * k as f64);
+                Pose::new(r, -(r * centre))
+            })
+            .collect();
+        let mut s = 11u64;
+        let mut u = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let points: Vec<Vec3> = (0..300)
+            .map(|_| Vec3::new(u() * 40.0 - 20.0, u() * 6.0 - 3.0, 8.0 + u() * 40.0))
+            .collect();
+        let mut observations = Vec::new();
+        for (k, Pose { r, t }) in poses.iter().enumerate() {
+            for (i, p) in points.iter().enumerate() {
+                let q = r * p + t;
+                let x = q / q.z;
+                let d = 1.0 + k1 * (x.x * x.x + x.y * x.y);
+                if q.z > 1.0 && x.x.abs() < 0.9 && x.y.abs() < 0.3 {
+                    observations.push(Observation {
+                        kf: k,
+                        point: i,
+                        bearing: Vec3::new(x.x * d, x.y * d, 1.0),
+                    });
+                }
+            }
+        }
+        LocalBa {
+            fixed: (0..poses.len()).map(|k| k < 2).collect(),
+            poses,
+            points,
+            observations,
+            huber: 2.0 / 700.0,
+        }
+    }
+
+    #[test]
+    fn a_window_reads_the_lens_residual_it_was_observed_through() {
+        for k1 in [0.0, 0.01, -0.02] {
+            let mut ba = turning_window(k1);
+            ba.solve(20);
+            let reading = ba
+                .radial_residual()
+                .expect("a turning window determines k1");
+            assert!(reading.information > 0.0);
+            assert!(
+                (reading.k1 - k1).abs() < 0.2 * k1.abs() + 1e-6,
+                "k1 {k1}: read {}",
+                reading.k1
+            );
         }
     }
 }

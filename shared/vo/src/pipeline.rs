@@ -59,6 +59,11 @@ impl VoPipeline {
     pub fn loop_closer(&self) -> Option<&crate::loops::LoopCloser> {
         self.loops.as_ref()
     }
+
+    /// The tracker.
+    pub fn tracker(&self) -> &Tracker {
+        &self.tracker
+    }
 }
 
 /// Hands one tracked frame to the loop closer and applies the correction it returns to the

@@ -91,6 +91,10 @@ pub struct RunArgs {
     /// see docs/vo.md) [pipeline.match_every_frame = false].
     #[arg(long)]
     keyframe_matching: bool,
+    /// Report the radial lens coefficient k1 that the local BAs ask for beyond the
+    /// calibration (in process; changes no pose) [pipeline.lens_check].
+    #[arg(long)]
+    lens_check: bool,
     /// Seed of the tracker's RANSAC sampling; 0 gives the reported runs [pipeline.seed].
     #[arg(long)]
     seed: Option<u64>,
@@ -144,6 +148,9 @@ impl RunArgs {
         }
         if self.keyframe_matching {
             p.match_every_frame = false;
+        }
+        if self.lens_check {
+            p.lens_check = true;
         }
         if let Some(c) = &self.camera {
             // absolute, so the daemon's stages find it whatever their directory
@@ -500,6 +507,14 @@ fn run_inprocess(
         "median time per frame {:.1} ms (extraction, matching and tracking in one process)",
         vo.median_ms()
     );
+    let lens = vo.inner().tracker().lens_residual();
+    if let Some(l) = &lens {
+        outln!(
+            "lens check: the local BAs ask for a radial k1 of {:+.4} beyond the calibration ({} windows)",
+            l.k1,
+            l.windows
+        );
+    }
     let report = serde_json::json!({
         "mode": "inprocess",
         "interrupted_at_frame": interrupted_at,
@@ -508,6 +523,7 @@ fn run_inprocess(
         "timing_ms": {"frame_median": vo.median_ms(), "per_frame": vo.durations_ms()},
         "peak_rss_kb": supermvo_pipeline::common::peak_rss_kb(),
         "loops": loops,
+        "lens_residual": lens,
         "frames_detail": outputs,
     });
     Ok((traj, report, interrupted_at.is_some()))

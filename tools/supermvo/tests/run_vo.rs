@@ -63,6 +63,26 @@ fn the_keyframe_ratio_rule_adds_keyframes() {
     assert!(k_off >= 5 && k_on > k_off, "{k_off} vs {k_on}");
 }
 
+/// `--lens-check` reports what the local BAs say about the lens: on KITTI 00 (through its
+/// turn) a positive radial coefficient beyond the calibration, as on every KITTI clip with
+/// turns (docs/decisions/2026-12-07-kitti-lens-residual-and-turn-scale.md; +0.0022 here).
+#[test]
+fn the_lens_check_reads_kittis_radial_residual() {
+    let Some(seq) = common::shared_data("kitti/sequences/00") else {
+        return;
+    };
+    if !common::models_ready() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let report = common::run_inprocess(&seq, tmp.path(), &["--lens-check"]);
+    let lens = &report["lens_residual"];
+    eprintln!("lens check on KITTI 00: {lens}");
+    let k1 = lens["k1"].as_f64().expect("a reading");
+    assert!(lens["windows"].as_u64().unwrap() >= 20, "{lens}");
+    assert!(k1 > 0.0005 && k1 < 0.02, "{lens}");
+}
+
 #[test]
 fn bad_sequences_are_clear_errors() {
     let d = tempfile::tempdir().unwrap();

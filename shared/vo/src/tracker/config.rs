@@ -118,6 +118,12 @@ pub struct TrackerConfig {
     /// of the two maps' median depths is no substitute: the old landmarks and the new
     /// two-view points are different parts of the scene (on `highway`, 20x apart).
     pub reinitialise_at_map_scale: bool,
+    /// After each local BA solved in this process (or answered at once by the mapping
+    /// solver), read what its observations say about the lens: the radial coefficient they
+    /// ask for beyond the calibration ([`crate::ba::LocalBa::radial_residual`]), averaged
+    /// over the run by information ([`Tracker::lens_residual`]). A diagnostic: it costs
+    /// about one more BA iteration per keyframe and changes no pose.
+    pub lens_check: bool,
     /// Essential-matrix RANSAC.
     pub ransac: RansacConfig,
     /// PnP RANSAC.
@@ -156,6 +162,7 @@ impl Default for TrackerConfig {
             backfill_frames: 16,
             reinitialise_on_reference: true,
             reinitialise_at_map_scale: true,
+            lens_check: false,
             ransac: RansacConfig::default(),
             pnp: PnpConfig::default(),
         }

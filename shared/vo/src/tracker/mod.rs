@@ -53,7 +53,7 @@ mod world_updates;
 pub use config::TrackerConfig;
 pub(crate) use frame::bearing;
 pub use frame::{FrameInput, FrameMeta, FrameOutput, LatePose, TrackingState};
-pub use local_ba::BaStats;
+pub use local_ba::{BaStats, LensResidual};
 
 use crate::map::Map;
 use supermvo_dataset::Calibration;
@@ -96,6 +96,8 @@ pub struct Tracker {
     unseen: usize,
     /// The last local BA, until taken.
     last_ba: Option<BaStats>,
+    /// The local BAs' readings of the lens (`TrackerConfig::lens_check`).
+    lens: local_ba::LensReadings,
     /// Scale of the map (median landmark depth at initialisation), to carry across
     /// re-initialisations.
     scale: Option<f64>,
@@ -139,6 +141,7 @@ impl Tracker {
             last_index: None,
             unseen: 0,
             last_ba: None,
+            lens: Default::default(),
             scale: None,
             reference_depths: None,
             last_frame: None,

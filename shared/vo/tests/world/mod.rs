@@ -14,7 +14,7 @@ pub use supermvo_geometry::{Mat3, Vec3};
 pub use supermvo_inference::{Features, Matches};
 pub use supermvo_vo::ba::{BaOutcome, LocalBa};
 pub use supermvo_vo::mapping_solver::{MappingSolver, TriangulationBatch};
-pub use supermvo_vo::tracker::{FrameMeta, Tracker, TrackerConfig};
+pub use supermvo_vo::tracker::{FrameMeta, LensResidual, Tracker, TrackerConfig};
 
 /// Whether the long statistical runs (the full tier) run: `tools/test.sh`, the README's test
 /// command, sets `SUPERMVO_LONG_TESTS=1`; plain `cargo test` prints that it skips `name`, so
@@ -90,6 +90,9 @@ pub struct Drive {
     /// From frame 10 on, frames `k` with `k % dropped.0 < dropped.1` never reach the tracker
     /// (a real-time pipeline that drops frames it cannot take); `(0, 0)`: none.
     pub dropped: (usize, usize),
+    /// The keypoints are seen through a lens with this radial coefficient (of normalised
+    /// coordinates, `x (1 + k1 |x|^2)`), which the calibration does not know.
+    pub lens_k1: f64,
 }
 
 impl Drive {
@@ -219,8 +222,10 @@ pub fn observe(
         } else {
             noise_px
         };
-        let u = c.fx * q.x / q.z + c.cx + sigma * rng.gauss();
-        let v = c.fy * q.y / q.z + c.cy + sigma * rng.gauss();
+        let (x, y) = (q.x / q.z, q.y / q.z);
+        let lens = 1.0 + drive.lens_k1 * (x * x + y * y);
+        let u = c.fx * q.x / q.z * lens + c.cx + sigma * rng.gauss();
+        let v = c.fy * q.y / q.z * lens + c.cy + sigma * rng.gauss();
         if u < 0.0 || v < 0.0 || u >= W as f64 || v >= H as f64 || ids.len() == 2000 {
             continue;
         }
