@@ -20,5 +20,7 @@ python3 tools/models/test_aliked_lightglue.py
 python3 tools/landmark_depth_check.py --self-test
 # the scale per stretch and per N frames of a run (docs/decisions), on constructed drives
 python3 tools/drive_scale.py --self-test
+# the lens refinement's root finding, on a made-up reading
+python3 tools/lens_refine.py --self-test
 # the vo crate's long statistical runs too (plain `cargo test` skips them, saying so)
 SUPERMVO_LONG_TESTS=1 cargo test --workspace --release "$@"
