@@ -369,6 +369,16 @@ pub struct RadialResidual {
 mod tests {
     use super::*;
 
+    /// Uniform numbers in [0, 1) from a xorshift generator seeded with `s`.
+    fn uniform(mut s: u64) -> impl FnMut() -> f64 {
+        move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
     #[test]
     fn recovers_perturbed_window() {
         // 4 cameras moving forward, 60 points; perturb free poses and points, BA must
@@ -382,13 +392,7 @@ mod tests {
             })
             .collect();
         let mut points = Vec::new();
-        let mut s = 7u64;
-        let mut u = || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut u = uniform(7u64);
         for _ in 0..60 {
             points.push(Vec3::new(
                 u() * 20.0 - 10.0,
@@ -442,13 +446,7 @@ mod tests {
                 Pose::new(r, -(r * centre))
             })
             .collect();
-        let mut s = 11u64;
-        let mut u = || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut u = uniform(11u64);
         let points: Vec<Vec3> = (0..300)
             .map(|_| Vec3::new(u() * 40.0 - 20.0, u() * 6.0 - 3.0, 8.0 + u() * 40.0))
             .collect();
