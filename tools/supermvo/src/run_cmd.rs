@@ -216,6 +216,11 @@ pub fn run(args: &RunArgs) -> Result<()> {
             cfg.pipeline.loops
         );
     }
+    if args.mode == Mode::Multiprocess && cfg.pipeline.lens_check {
+        bail!(
+            "--lens-check (pipeline.lens_check) reads the lens in the in-process run only; add --mode inprocess"
+        );
+    }
     let mut seq = Sequence::open_with_camera(&args.seq_dir, cfg.pipeline.camera.as_deref())?;
     let lens = features::keypoint_lens(&cfg.pipeline, &mut seq);
     check_calibration(&seq)?;
