@@ -121,8 +121,9 @@ pub struct TrackerConfig {
     /// After each local BA solved in this process (or answered at once by the mapping
     /// solver), read what its observations say about the lens: the radial coefficient they
     /// ask for beyond the calibration ([`crate::ba::LocalBa::radial_residual`]), averaged
-    /// over the run by information ([`Tracker::lens_residual`]). A diagnostic: it costs
-    /// about one more BA iteration per keyframe and changes no pose.
+    /// over the run by information ([`Tracker::lens_residual`]). A diagnostic: one more
+    /// linearisation and two more solves of the window per keyframe (about two of the BA's
+    /// ten iterations); it changes no pose.
     pub lens_check: bool,
     /// Essential-matrix RANSAC.
     pub ransac: RansacConfig,
