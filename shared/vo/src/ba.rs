@@ -283,16 +283,17 @@ impl LocalBa {
         let coupling = self.radial_coupling(&window.slot, &normal);
         // H^-1 g and H^-1 H_xk through the window's own Schur solver (it returns -H^-1 g)
         let step = window.solve(&normal, 0.0)?;
+        // the same system with the k1 column as its right-hand side
         let column = Normal {
-            gc: coupling.camera.clone(),
-            gp: coupling.point.clone(),
+            gc: coupling.camera,
+            gp: coupling.point,
             ..normal
         };
         let response = window.solve(&column, 0.0)?;
         let along = |s: &Step| {
-            coupling.camera.dot(&s.cameras)
-                + coupling
-                    .point
+            column.gc.dot(&s.cameras)
+                + column
+                    .gp
                     .iter()
                     .zip(&s.points)
                     .map(|(a, b)| a.dot(b))
