@@ -44,6 +44,8 @@ import subprocess
 import sys
 import tempfile
 
+import lens_refine
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 KITTI = os.path.normpath(os.path.join(ROOT, "..", "shared", "data", "kitti"))
 CLIPS = ["00", "00_long", "01", "03", "06", "07"]
@@ -98,21 +100,11 @@ def subsample(clip, stride, root, lens_k1=None):
 def write_camera_file(seq, image, k1):
     """`camera.yaml` in `seq`: the intrinsics of its calib.txt (P0) and radial coefficient
     `k1` (ORB-SLAM3's layout, which `supermvo run` reads beside calib.txt)."""
-    with open(os.path.join(seq, "calib.txt")) as f:
-        p0 = next((line.split()[1:] for line in f if line.startswith("P0:")), None)
-    if p0 is None or len(p0) != 12:
-        sys.exit(f"clip_study: {seq}/calib.txt has no P0 line of 12 numbers")
-    fx, cx, fy, cy = (float(p0[i]) for i in (0, 2, 5, 6))
-    with open(image, "rb") as f:
-        head = f.read(24)
-    if head[:8] != b"\x89PNG\r\n\x1a\n":
+    size = lens_refine.png_size(image)
+    if size is None:
         sys.exit(f"clip_study: {image} is not a PNG; --lens-k1 reads the image size from it")
-    width, height = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
-    with open(os.path.join(seq, "camera.yaml"), "w") as f:
-        f.write(f"%YAML:1.0\nCamera.type: \"PinHole\"\nCamera.width: {width}\n"
-                f"Camera.height: {height}\nCamera.fx: {fx!r}\nCamera.fy: {fy!r}\n"
-                f"Camera.cx: {cx!r}\nCamera.cy: {cy!r}\nCamera.k1: {k1!r}\nCamera.k2: 0.0\n"
-                "Camera.p1: 0.0\nCamera.p2: 0.0\nCamera.k3: 0.0\n")
+    lens = dict(lens_refine.read_lens(seq, None), k1=k1)
+    lens_refine.write_lens(os.path.join(seq, "camera.yaml"), lens, size, f"clip_study --lens-k1 {k1!r}")
 
 
 def run_one(binary, seq, out, extra):

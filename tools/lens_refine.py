@@ -53,20 +53,29 @@ def read_lens(seq, base):
     return dict(fx=fx, fy=fy, cx=cx, cy=cy, k1=0.0, k2=0.0, p1=0.0, p2=0.0, k3=0.0)
 
 
+def png_size(path):
+    """Width and height of a PNG file, or None when it is not one."""
+    with open(path, "rb") as f:
+        head = f.read(24)
+    if head[:8] != b"\x89PNG\r\n\x1a\n":
+        return None
+    return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+
+
 def image_size(seq):
     """Width and height of the first PNG frame of a KITTI-layout sequence."""
     folder = os.path.join(seq, "image_0")
     for name in sorted(os.listdir(folder)) if os.path.isdir(folder) else []:
-        with open(os.path.join(folder, name), "rb") as f:
-            head = f.read(24)
-        if head[:8] == b"\x89PNG\r\n\x1a\n":
-            return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+        size = png_size(os.path.join(folder, name))
+        if size:
+            return size
     sys.exit(f"lens_refine: {folder}: no PNG frame to read the image size from")
 
 
-def write_lens(path, lens, size):
+def write_lens(path, lens, size, note="refined by tools/lens_refine.py (k1 from the local BAs' lens check)"):
+    """An ORB-SLAM3 camera file (PinHole, radial-tangential) with `lens` and image `size`."""
     with open(path, "w") as f:
-        f.write("%YAML:1.0\n# refined by tools/lens_refine.py (k1 from the local BAs' lens check)\n")
+        f.write(f"%YAML:1.0\n# {note}\n")
         f.write(f'Camera.type: "PinHole"\nCamera.width: {size[0]}\nCamera.height: {size[1]}\n')
         for k in KEYS:
             f.write(f"Camera.{k}: {lens[k]!r}\n")
