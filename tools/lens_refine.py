@@ -14,7 +14,9 @@ the refined camera file, which `supermvo run --camera FILE` then uses.
 The starting lens is BASE.yaml (ORB-SLAM3 layout, pinhole with k1 k2 p1 p2 k3) or the KITTI
 `calib.txt` of SEQ (k1 = 0). The drive must turn: on a straight road the radial term and
 the depths cannot be told apart, and the reading is noise
-(docs/decisions/2026-12-07-kitti-lens-residual-and-turn-scale.md). `--self-test` checks the
+(docs/decisions/2026-12-07-kitti-lens-residual-and-turn-scale.md). It is not reliable
+everywhere: on the synthetic `lighting` drive, whose exposure changes, the reading is +0.004
+at the exact lens. Check a refined lens against ground truth where there is some. `--self-test` checks the
 root finding on a made-up reading.
 """
 import argparse
