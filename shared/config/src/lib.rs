@@ -216,6 +216,10 @@ pub struct PipelineConfig {
     /// process: a summary line and `lens_residual` in report.json). A diagnostic of the
     /// lens model; it changes no pose.
     pub lens_check: bool,
+    /// Learn the radial coefficient k1 the calibration misses from the local BAs of windows
+    /// that turn, and see every observation through it from then on (in process and the
+    /// lossless daemon).
+    pub lens_self_calibration: bool,
     /// Camera file (ORB-SLAM3 / OpenCV YAML or EuRoC `sensor.yaml`) with the intrinsics and
     /// lens distortion of the frames; replaces KITTI's `calib.txt` and EuRoC's own
     /// `sensor.yaml`, and is needed by TUM and image-folder sequences without `camera.yaml`.
@@ -315,6 +319,7 @@ impl Default for PipelineConfig {
             covisible_triangulation: 0,
             robust_cutoff: 3.0,
             lens_check: false,
+            lens_self_calibration: false,
             camera: None,
             undistort: Undistort::Keypoints,
             match_every_frame: true,

@@ -39,6 +39,7 @@ pub fn tracker_config(cfg: &PipelineConfig) -> TrackerConfig {
         robust_cutoff_factor: cfg.robust_cutoff,
         match_every_frame: cfg.match_every_frame,
         lens_check: cfg.lens_check,
+        lens_self_calibration: cfg.lens_self_calibration,
         ..TrackerConfig::default()
     }
     .with_seed(cfg.seed);

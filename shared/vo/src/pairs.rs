@@ -1,6 +1,6 @@
 //! Two-view checks of a front end's matches.
 
-use crate::tracker::bearing;
+use crate::tracker::{bearing, Lens};
 use supermvo_dataset::Calibration;
 use supermvo_geometry::essential::{find_essential, RansacConfig};
 use supermvo_geometry::{Pose, Vec3};
@@ -15,15 +15,16 @@ pub fn essential_inliers(
     m: &Matches,
     ransac: &RansacConfig,
 ) -> usize {
+    let lens = Lens::from(*k);
     let x1: Vec<Vec3> = m
         .pairs
         .iter()
-        .map(|&(i, _)| bearing(k, &a.keypoints[i]))
+        .map(|&(i, _)| bearing(&lens, &a.keypoints[i]))
         .collect();
     let x2: Vec<Vec3> = m
         .pairs
         .iter()
-        .map(|&(_, j)| bearing(k, &b.keypoints[j]))
+        .map(|&(_, j)| bearing(&lens, &b.keypoints[j]))
         .collect();
     find_essential(&x1, &x2, 0.5 * (k.fx + k.fy), ransac).map_or(0, |e| e.inlier_count())
 }
@@ -43,11 +44,12 @@ pub fn epipolar_distances_px(
     }
     let e = t_b_a.t.cross_matrix() * t_b_a.r;
     let focal = 0.5 * (k.fx + k.fy);
+    let lens = Lens::from(*k);
     m.pairs
         .iter()
         .map(|&(i, j)| {
-            let line = e * bearing(k, &a.keypoints[i]);
-            bearing(k, &b.keypoints[j]).dot(&line).abs() / line.x.hypot(line.y) * focal
+            let line = e * bearing(&lens, &a.keypoints[i]);
+            bearing(&lens, &b.keypoints[j]).dot(&line).abs() / line.x.hypot(line.y) * focal
         })
         .collect()
 }

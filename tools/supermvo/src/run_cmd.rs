@@ -95,6 +95,10 @@ pub struct RunArgs {
     /// calibration (in process; changes no pose) [pipeline.lens_check].
     #[arg(long)]
     lens_check: bool,
+    /// Learn the radial lens coefficient k1 the calibration misses while driving
+    /// [pipeline.lens_self_calibration].
+    #[arg(long)]
+    lens_self_calibration: bool,
     /// Seed of the tracker's RANSAC sampling; 0 gives the reported runs [pipeline.seed].
     #[arg(long)]
     seed: Option<u64>,
@@ -151,6 +155,9 @@ impl RunArgs {
         }
         if self.lens_check {
             p.lens_check = true;
+        }
+        if self.lens_self_calibration {
+            p.lens_self_calibration = true;
         }
         if let Some(c) = &self.camera {
             // absolute, so the daemon's stages find it whatever their directory
@@ -219,6 +226,11 @@ pub fn run(args: &RunArgs) -> Result<()> {
     if args.mode == Mode::Multiprocess && cfg.pipeline.lens_check {
         bail!(
             "--lens-check (pipeline.lens_check) reads the lens in the in-process run only; add --mode inprocess"
+        );
+    }
+    if args.mode == Mode::Multiprocess && cfg.pipeline.lens_self_calibration {
+        bail!(
+            "--lens-self-calibration (pipeline.lens_self_calibration) learns the lens in the in-process run only; add --mode inprocess"
         );
     }
     let mut seq = Sequence::open_with_camera(&args.seq_dir, cfg.pipeline.camera.as_deref())?;

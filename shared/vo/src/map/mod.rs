@@ -146,6 +146,20 @@ impl Map {
         (self.prefetch_use.0.take(), self.prefetch_use.1.take())
     }
 
+    /// Replaces the bearing of every observation the map holds (landmarks' and pending
+    /// tracks') by `f` of it: the camera's lens model changed (`tracker::lens`).
+    pub(crate) fn remap_bearings(&mut self, f: impl Fn(&Vec3) -> Vec3) {
+        let views = self
+            .landmarks
+            .values_mut()
+            .flat_map(|lm| lm.obs.iter_mut())
+            .chain(self.tracks.values_mut().flatten());
+        for (_, b) in views {
+            *b = f(b);
+        }
+        self.prefetched.clear();
+    }
+
     fn max_error(&self) -> f64 {
         2.0 / self.focal
     }

@@ -125,6 +125,15 @@ pub struct TrackerConfig {
     /// linearisation and two more solves of the window per keyframe (about two of the BA's
     /// ten iterations); it changes no pose.
     pub lens_check: bool,
+    /// Learn the radial coefficient the calibration misses from the same readings, taken
+    /// from windows that turn, and see every observation through it from then on
+    /// (`tracker::lens`). Only where the local BA is solved at once (in process, and the
+    /// lossless daemon).
+    pub lens_self_calibration: bool,
+    /// The rotation a window's keyframes must span (degrees) for its lens reading to teach
+    /// the tracker: under forward motion a radial term and depth trade off and the
+    /// readings wander.
+    pub lens_min_rotation_deg: f64,
     /// Essential-matrix RANSAC.
     pub ransac: RansacConfig,
     /// PnP RANSAC.
@@ -164,6 +173,8 @@ impl Default for TrackerConfig {
             reinitialise_on_reference: true,
             reinitialise_at_map_scale: true,
             lens_check: false,
+            lens_self_calibration: false,
+            lens_min_rotation_deg: 15.0,
             ransac: RansacConfig::default(),
             pnp: PnpConfig::default(),
         }

@@ -10,7 +10,7 @@
 //!
 //! Frames: keyframe poses are `T_cam_world`; bearings are normalised image coordinates.
 
-use super::frame::bearing;
+use super::lens::bearing;
 use super::Tracker;
 use supermvo_geometry::essential::triangulate_checked;
 use supermvo_geometry::Vec3;

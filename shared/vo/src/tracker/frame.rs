@@ -1,8 +1,8 @@
 //! What the tracker takes and returns per frame, and the conversions between keypoints,
 //! bearings and the `T_world_cam` poses it reports.
 
-use supermvo_dataset::{Calibration, GrayImage};
-use supermvo_geometry::{Pose, Vec3};
+use supermvo_dataset::GrayImage;
+use supermvo_geometry::Pose;
 
 /// Tracking state of a frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
@@ -95,12 +95,4 @@ pub struct FrameMeta {
     pub index: usize,
     /// Timestamp, seconds.
     pub stamp: f64,
-}
-
-pub(crate) fn bearing(c: &Calibration, p: &[f32; 2]) -> Vec3 {
-    Vec3::new(
-        (p[0] as f64 - c.cx) / c.fx,
-        (p[1] as f64 - c.cy) / c.fy,
-        1.0,
-    )
 }

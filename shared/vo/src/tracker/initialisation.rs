@@ -4,7 +4,7 @@
 //! continues the old map's scale where its first view saw the old landmarks, and otherwise
 //! gets the first map's median depth.
 
-use super::frame::bearing;
+use super::lens::bearing;
 use super::{FrameMeta, FrameOutput, Keyframe, Tracker, TrackingState};
 use supermvo_geometry::essential::{find_essential, recover_pose, triangulate_checked};
 use supermvo_geometry::{Mat3, Pose, Vec3};

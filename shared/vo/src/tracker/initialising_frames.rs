@@ -7,7 +7,7 @@
 //! initialised ([`super::FrameOutput::backfilled`]). The reference frame of a new map after
 //! a loss is not among them: its pose is the assumed last pose the new map starts from.
 
-use super::frame::bearing;
+use super::lens::bearing;
 use super::tracking::{LandmarkMatches, PoseFit};
 use super::{FrameMeta, LatePose, Tracker};
 use std::collections::{HashMap, VecDeque};

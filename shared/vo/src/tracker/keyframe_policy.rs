@@ -3,7 +3,7 @@
 //! outside the PnP gate, and its other matches to the reference as pending tracks or new
 //! landmarks).
 
-use super::frame::bearing;
+use super::lens::bearing;
 use super::tracking::{LandmarkMatches, PoseFit};
 use super::{FrameMeta, FrameOutput, Keyframe, Tracker, TrackingState};
 use std::collections::BTreeSet;

@@ -2,7 +2,7 @@
 //! landmarks, older keyframes that see them held fixed as anchors (they carry the scale).
 
 use super::Tracker;
-use crate::ba::{BaOutcome, RadialResidual};
+use crate::ba::BaOutcome;
 use supermvo_geometry::{Pose, Vec3};
 
 /// One local bundle adjustment: its size, cost (sum of squared normalised reprojection
@@ -155,9 +155,7 @@ impl Tracker {
         };
         let (c0, c1) = match outcome {
             BaOutcome::Solved(c0, c1) => {
-                if self.cfg.lens_check {
-                    self.lens.add(ba.radial_residual());
-                }
+                self.read_lens(&ba);
                 (c0, c1)
             }
             BaOutcome::Deferred(id) => {
@@ -245,58 +243,9 @@ impl Tracker {
         fits
     }
 
-    /// What the local BAs so far say about the lens (`TrackerConfig::lens_check`; `None`
-    /// when off or when no window determined it).
-    pub fn lens_residual(&self) -> Option<LensResidual> {
-        self.lens.summary()
-    }
-
     /// What the last local bundle adjustment did, taken (for benchmarks and diagnostics:
     /// `None` when no window was solved since the last call).
     pub fn take_ba_stats(&mut self) -> Option<BaStats> {
         self.last_ba.take()
-    }
-}
-
-/// The radial coefficient a run's local BAs ask for beyond the calibration
-/// ([`Tracker::lens_residual`]).
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
-pub struct LensResidual {
-    /// Information-weighted mean of the windows' readings (normalised coordinates,
-    /// `x (1 + k1 |x|^2)`).
-    pub k1: f64,
-    /// Its standard error were the windows independent (they share observations, so the
-    /// true one is larger).
-    pub std_error: f64,
-    /// Windows that determined it.
-    pub windows: usize,
-}
-
-/// The readings accumulated over a run.
-#[derive(Debug, Clone, Default)]
-pub(crate) struct LensReadings {
-    weighted: f64,
-    information: f64,
-    variance: f64,
-    windows: usize,
-}
-
-impl LensReadings {
-    fn add(&mut self, reading: Option<RadialResidual>) {
-        let Some(r) = reading.filter(|r| r.k1.is_finite() && r.information.is_finite()) else {
-            return;
-        };
-        self.weighted += r.information * r.k1;
-        self.information += r.information;
-        self.variance += r.residual_variance;
-        self.windows += 1;
-    }
-
-    fn summary(&self) -> Option<LensResidual> {
-        (self.windows > 0 && self.information > 0.0).then(|| LensResidual {
-            k1: self.weighted / self.information,
-            std_error: (self.variance / self.windows as f64 / self.information).sqrt(),
-            windows: self.windows,
-        })
     }
 }

@@ -78,7 +78,7 @@ impl Tracker {
             if q.z <= 1e-6 {
                 continue;
             }
-            let (u, v) = (c.fx * q.x / q.z + c.cx, c.fy * q.y / q.z + c.cy);
+            let (u, v) = c.project(&q);
             if u < 0.0 || v < 0.0 || u >= w as f64 || v >= h as f64 {
                 continue;
             }

@@ -33,9 +33,10 @@
 //! frame with matches ([`tracking`]), the keyframe decision and what a keyframe adds to the
 //! map ([`keyframe_policy`]), tracking one without
 //! ([`projection`]), matching by projection ([`map_search`]), what becomes of a frame that
-//! cannot be posed ([`recovery`]: the reference kept, relocalisation, a new map) and the
-//! local bundle adjustment ([`local_ba`]); this file holds the tracker's state, the
-//! keyframe insertion and the per-frame entry points between them.
+//! cannot be posed ([`recovery`]: the reference kept, relocalisation, a new map), the
+//! local bundle adjustment ([`local_ba`]) and the lens it reads and learns ([`lens`]); this
+//! file holds the tracker's state, the keyframe insertion and the per-frame entry points
+//! between them.
 
 mod config;
 mod covisible_triangulation;
@@ -43,6 +44,7 @@ mod frame;
 mod initialisation;
 mod initialising_frames;
 mod keyframe_policy;
+mod lens;
 mod local_ba;
 mod map_search;
 mod projection;
@@ -51,9 +53,10 @@ mod tracking;
 mod world_updates;
 
 pub use config::TrackerConfig;
-pub(crate) use frame::bearing;
 pub use frame::{FrameInput, FrameMeta, FrameOutput, LatePose, TrackingState};
-pub use local_ba::{BaStats, LensResidual};
+pub use lens::LensResidual;
+pub(crate) use lens::{bearing, Lens};
+pub use local_ba::BaStats;
 
 use crate::map::Map;
 use supermvo_dataset::Calibration;
@@ -75,7 +78,7 @@ struct Keyframe {
 
 /// The tracker (see module docs).
 pub struct Tracker {
-    calib: Calibration,
+    calib: Lens,
     cfg: TrackerConfig,
     /// Landmarks, pending tracks and keyframe poses.
     map: Map,
@@ -96,8 +99,9 @@ pub struct Tracker {
     unseen: usize,
     /// The last local BA, until taken.
     last_ba: Option<BaStats>,
-    /// The local BAs' readings of the lens (`TrackerConfig::lens_check`).
-    lens: local_ba::LensReadings,
+    /// The local BAs' readings of the lens (`TrackerConfig::lens_check`,
+    /// `lens_self_calibration`).
+    lens_readings: lens::LensReadings,
     /// Scale of the map (median landmark depth at initialisation), to carry across
     /// re-initialisations.
     scale: Option<f64>,
@@ -130,7 +134,7 @@ impl Tracker {
     /// A tracker for the given left-camera calibration.
     pub fn new(calib: Calibration, cfg: TrackerConfig) -> Self {
         Self {
-            calib,
+            calib: Lens::from(calib),
             cfg,
             map: Map::new(0.5 * (calib.fx + calib.fy)),
             keyframe: None,
@@ -141,7 +145,7 @@ impl Tracker {
             last_index: None,
             unseen: 0,
             last_ba: None,
-            lens: Default::default(),
+            lens_readings: Default::default(),
             scale: None,
             reference_depths: None,
             last_frame: None,

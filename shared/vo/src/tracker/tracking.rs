@@ -4,7 +4,7 @@
 //! model, and the keyframe decision ([`super::keyframe_policy`], which also makes the
 //! keyframe).
 
-use super::frame::bearing;
+use super::lens::bearing;
 use super::projection::LastFrame;
 use super::{FrameMeta, FrameOutput, Keyframe, Tracker, TrackingState};
 use supermvo_geometry::pnp::{reprojection_sq, solve_pnp_ransac, PnpConfig, PnpEstimate};

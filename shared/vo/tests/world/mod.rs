@@ -93,7 +93,12 @@ pub struct Drive {
     /// The keypoints are seen through a lens with this radial coefficient (of normalised
     /// coordinates, `x (1 + k1 |x|^2)`), which the calibration does not know.
     pub lens_k1: f64,
+    /// Turns of the drive (0: one), `TURN_PERIOD` frames apart, all the same way.
+    pub turns: usize,
 }
+
+/// Frames from one turn's start to the next's.
+pub const TURN_PERIOD: usize = 130;
 
 impl Drive {
     pub fn frames(&self) -> usize {
@@ -102,6 +107,13 @@ impl Drive {
         } else {
             self.frames
         }
+    }
+    /// Whether frame `i` is in a turn.
+    pub fn turning(&self, i: usize) -> bool {
+        (0..self.turns.max(1)).any(|n| {
+            let a = self.turn_at().saturating_add(n * TURN_PERIOD);
+            (a..a.saturating_add(TURN)).contains(&i)
+        })
     }
     /// Frame at which the turn starts.
     pub fn turn_at(&self) -> usize {
@@ -124,7 +136,7 @@ pub fn path_axle(k: usize, drive: Drive) -> (Vec3, f64) {
     let mut yaw = 0.0f64;
     let rate = std::f64::consts::FRAC_PI_2 / TURN as f64;
     for i in 0..k {
-        if (drive.turn_at()..drive.turn_at() + TURN).contains(&i) {
+        if drive.turning(i) {
             yaw += rate;
         }
         c += speed(i, drive) * Vec3::new(yaw.sin(), 0.0, yaw.cos());
