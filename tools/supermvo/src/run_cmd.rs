@@ -525,12 +525,19 @@ fn run_inprocess(
         vo.median_ms()
     );
     let lens = vo.inner().tracker().lens_residual();
-    if let Some(l) = &lens {
-        outln!(
+    match &lens {
+        Some(l) if cfg.pipeline.lens_self_calibration => outln!(
+            "lens self-calibration: learnt a radial k1 of {:+.4} beyond the calibration; the local BAs ask for {:+.4} more ({} windows)",
+            l.learnt_k1,
+            l.k1,
+            l.windows
+        ),
+        Some(l) => outln!(
             "lens check: the local BAs ask for a radial k1 of {:+.4} beyond the calibration ({} windows)",
             l.k1,
             l.windows
-        );
+        ),
+        None => {}
     }
     let report = serde_json::json!({
         "mode": "inprocess",
