@@ -128,6 +128,8 @@ def run_one(binary, seq, out, extra):
         "t_err": kitti["t_err_pct"] if kitti else None,
         "r_err": kitti["r_err_deg_per_100m"] if kitti else None,
         "ms": rep["timing_ms"]["frame_median"],
+        # the radial k1 learnt beyond the calibration (--lens-self-calibration)
+        "learnt_k1": (rep.get("lens_residual") or {}).get("learnt_k1"),
     }
 
 

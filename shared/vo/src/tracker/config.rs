@@ -174,7 +174,7 @@ impl Default for TrackerConfig {
             reinitialise_at_map_scale: true,
             lens_check: false,
             lens_self_calibration: false,
-            lens_min_rotation_deg: 15.0,
+            lens_min_rotation_deg: 10.0,
             ransac: RansacConfig::default(),
             pnp: PnpConfig::default(),
         }

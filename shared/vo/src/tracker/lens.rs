@@ -10,7 +10,7 @@
 //! one Gauss-Newton step on k1 with the free keyframes and points eliminated). Only a window
 //! that turns determines it: under forward motion a radial term and depth trade off, and
 //! the readings of straight windows wander. So the tracker moves its k1 by the reading of
-//! every window whose keyframes span at least `TrackerConfig::lens_min_rotation_deg`, and
+//! every window whose keyframes span at least `TrackerConfig::lens_min_rotation_deg` (10), and
 //! re-reads every observation the map holds through the new lens, so that old and new
 //! observations of a landmark agree (without that, the mixed bearings of the turn in which
 //! k1 is learnt step the scale the other way).
