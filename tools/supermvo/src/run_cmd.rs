@@ -223,15 +223,20 @@ pub fn run(args: &RunArgs) -> Result<()> {
             cfg.pipeline.loops
         );
     }
-    if args.mode == Mode::Multiprocess && cfg.pipeline.lens_check {
-        bail!(
-            "--lens-check (pipeline.lens_check) reads the lens in the in-process run only; add --mode inprocess"
-        );
-    }
-    if args.mode == Mode::Multiprocess && cfg.pipeline.lens_self_calibration {
-        bail!(
-            "--lens-self-calibration (pipeline.lens_self_calibration) learns the lens in the in-process run only; add --mode inprocess"
-        );
+    let in_process_only = [
+        (
+            cfg.pipeline.lens_check,
+            "--lens-check (pipeline.lens_check)",
+        ),
+        (
+            cfg.pipeline.lens_self_calibration,
+            "--lens-self-calibration (pipeline.lens_self_calibration)",
+        ),
+    ];
+    if let Some((_, option)) = in_process_only.iter().find(|(on, _)| *on) {
+        if args.mode == Mode::Multiprocess {
+            bail!("{option} works in the in-process run only; add --mode inprocess");
+        }
     }
     let mut seq = Sequence::open_with_camera(&args.seq_dir, cfg.pipeline.camera.as_deref())?;
     let lens = features::keypoint_lens(&cfg.pipeline, &mut seq);

@@ -125,14 +125,17 @@ impl Tracker {
         }
         let reading = ba.radial_residual();
         self.lens_readings.add(reading);
-        let turns = || window_rotation_deg(ba) >= self.cfg.lens_min_rotation_deg;
-        if let Some(r) = reading.filter(|_| self.cfg.lens_self_calibration && turns()) {
+        let Some(r) = reading.filter(|_| self.cfg.lens_self_calibration) else {
+            return;
+        };
+        let span_deg = window_rotation_deg(ba);
+        if span_deg >= self.cfg.lens_min_rotation_deg {
             let k1 = (self.calib.k1 + r.k1).clamp(-LENS_MAX_K1, LENS_MAX_K1);
             tracing::debug!(
                 keyframe = self.map.keyframe_poses.len() - 1,
                 reading = r.k1,
                 k1,
-                span_deg = window_rotation_deg(ba),
+                span_deg,
                 "lens learnt"
             );
             self.set_lens_k1(k1);
@@ -149,13 +152,12 @@ impl Tracker {
         self.calib.k1 = k1;
         let new = self.calib;
         self.map.remap_bearings(|b| rebearing(&old, &new, b));
-        self.lens_readings.learnt_k1 = k1;
     }
 
     /// What the local BAs so far say about the lens (with `TrackerConfig::lens_check` or
     /// `lens_self_calibration`; `None` when off or when no window determined it).
     pub fn lens_residual(&self) -> Option<LensResidual> {
-        self.lens_readings.summary()
+        self.lens_readings.summary(self.calib.k1)
     }
 }
 
@@ -183,7 +185,6 @@ pub(crate) struct LensReadings {
     information: f64,
     variance: f64,
     windows: usize,
-    learnt_k1: f64,
 }
 
 impl LensReadings {
@@ -197,12 +198,13 @@ impl LensReadings {
         self.windows += 1;
     }
 
-    fn summary(&self) -> Option<LensResidual> {
+    /// The readings so far, with the tracker's learnt radial coefficient `learnt_k1`.
+    fn summary(&self, learnt_k1: f64) -> Option<LensResidual> {
         (self.windows > 0 && self.information > 0.0).then(|| LensResidual {
             k1: self.weighted / self.information,
             std_error: (self.variance / self.windows as f64 / self.information).sqrt(),
             windows: self.windows,
-            learnt_k1: self.learnt_k1,
+            learnt_k1,
         })
     }
 }
