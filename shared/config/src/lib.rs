@@ -218,8 +218,12 @@ pub struct PipelineConfig {
     pub lens_check: bool,
     /// Learn the radial coefficient k1 the calibration misses from the local BAs of windows
     /// that turn, and see every observation through it from then on (in process and the
-    /// lossless daemon).
+    /// lossless daemon; in real time the daemon hands its local BAs over and learns nothing).
+    /// On by default: it starts only once the turning windows read at least `lens_min_k1`.
     pub lens_self_calibration: bool,
+    /// The smallest radial error `lens_self_calibration` corrects: it learns only once the
+    /// turning windows' readings average at least this far from the calibration, [0, 0.05].
+    pub lens_min_k1: f64,
     /// Camera file (ORB-SLAM3 / OpenCV YAML or EuRoC `sensor.yaml`) with the intrinsics and
     /// lens distortion of the frames; replaces KITTI's `calib.txt` and EuRoC's own
     /// `sensor.yaml`, and is needed by TUM and image-folder sequences without `camera.yaml`.
@@ -319,7 +323,8 @@ impl Default for PipelineConfig {
             covisible_triangulation: 0,
             robust_cutoff: 3.0,
             lens_check: false,
-            lens_self_calibration: false,
+            lens_self_calibration: true,
+            lens_min_k1: 0.005,
             camera: None,
             undistort: Undistort::Keypoints,
             match_every_frame: true,
@@ -447,6 +452,7 @@ impl PipelineConfig {
             4,
         )?;
         range("robust_cutoff", self.robust_cutoff, 1.0, 10.0)?;
+        range("lens_min_k1", self.lens_min_k1, 0.0, 0.05)?;
         range("relocalisation_frames", self.relocalisation_frames, 0, 100)?;
         range(
             "backfill_frames",
@@ -646,6 +652,7 @@ mod tests {
             ("keyframe_ratio", "-0.1"),
             ("robust_cutoff", "0.5"),
             ("robust_cutoff", "11.0"),
+            ("lens_min_k1", "-0.001"),
             ("covisible_triangulation", "5"),
             ("image_scale", "0.2"),
             ("image_scale", "1.5"),

@@ -40,6 +40,7 @@ pub fn tracker_config(cfg: &PipelineConfig) -> TrackerConfig {
         match_every_frame: cfg.match_every_frame,
         lens_check: cfg.lens_check,
         lens_self_calibration: cfg.lens_self_calibration,
+        lens_min_k1: cfg.lens_min_k1,
         ..TrackerConfig::default()
     }
     .with_seed(cfg.seed);

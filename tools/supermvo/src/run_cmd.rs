@@ -95,10 +95,14 @@ pub struct RunArgs {
     /// calibration (in process; changes no pose) [pipeline.lens_check].
     #[arg(long)]
     lens_check: bool,
-    /// Learn the radial lens coefficient k1 the calibration misses while driving
-    /// [pipeline.lens_self_calibration].
-    #[arg(long)]
+    /// Learn the radial lens coefficient k1 the calibration misses while driving (the
+    /// default; in process and in the lossless daemon) [pipeline.lens_self_calibration].
+    #[arg(long, overrides_with = "no_lens_self_calibration")]
     lens_self_calibration: bool,
+    /// See through the calibration only: learn no lens while driving
+    /// [pipeline.lens_self_calibration = false].
+    #[arg(long)]
+    no_lens_self_calibration: bool,
     /// Seed of the tracker's RANSAC sampling; 0 gives the reported runs [pipeline.seed].
     #[arg(long)]
     seed: Option<u64>,
@@ -158,6 +162,9 @@ impl RunArgs {
         }
         if self.lens_self_calibration {
             p.lens_self_calibration = true;
+        }
+        if self.no_lens_self_calibration {
+            p.lens_self_calibration = false;
         }
         if let Some(c) = &self.camera {
             // absolute, so the daemon's stages find it whatever their directory
@@ -223,20 +230,8 @@ pub fn run(args: &RunArgs) -> Result<()> {
             cfg.pipeline.loops
         );
     }
-    let in_process_only = [
-        (
-            cfg.pipeline.lens_check,
-            "--lens-check (pipeline.lens_check)",
-        ),
-        (
-            cfg.pipeline.lens_self_calibration,
-            "--lens-self-calibration (pipeline.lens_self_calibration)",
-        ),
-    ];
-    if let Some((_, option)) = in_process_only.iter().find(|(on, _)| *on) {
-        if args.mode == Mode::Multiprocess {
-            bail!("{option} works in the in-process run only; add --mode inprocess");
-        }
+    if cfg.pipeline.lens_check && args.mode == Mode::Multiprocess {
+        bail!("--lens-check (pipeline.lens_check) works in the in-process run only; add --mode inprocess");
     }
     let mut seq = Sequence::open_with_camera(&args.seq_dir, cfg.pipeline.camera.as_deref())?;
     let lens = features::keypoint_lens(&cfg.pipeline, &mut seq);
@@ -530,19 +525,8 @@ fn run_inprocess(
         vo.median_ms()
     );
     let lens = vo.inner().tracker().lens_residual();
-    match &lens {
-        Some(l) if cfg.pipeline.lens_self_calibration => outln!(
-            "lens self-calibration: learnt a radial k1 of {:+.4} beyond the calibration; the local BAs ask for {:+.4} more ({} windows)",
-            l.learnt_k1,
-            l.k1,
-            l.windows
-        ),
-        Some(l) => outln!(
-            "lens check: the local BAs ask for a radial k1 of {:+.4} beyond the calibration ({} windows)",
-            l.k1,
-            l.windows
-        ),
-        None => {}
+    if let Some(l) = &lens {
+        outln!("{}", lens_summary(l, &cfg.pipeline));
     }
     let report = serde_json::json!({
         "mode": "inprocess",
@@ -652,4 +636,31 @@ fn run_multiprocess(
         "frames_detail": records,
     });
     Ok((traj, report, metrics.interrupted))
+}
+
+/// The run's summary line about the lens (`--lens-check`, `--lens-self-calibration`).
+fn lens_summary(
+    l: &supermvo_vo::tracker::LensResidual,
+    p: &supermvo_config::PipelineConfig,
+) -> String {
+    let turning = match l.turning_k1 {
+        Some(k1) => format!(
+            "the turning windows read a radial k1 of {k1:+.4} beyond the calibration ({} windows)",
+            l.turning_windows
+        ),
+        None => "no window turned enough to read the lens".to_string(),
+    };
+    if !p.lens_self_calibration {
+        return format!("lens check: {turning}");
+    }
+    if l.learnt_k1 != 0.0 {
+        return format!(
+            "lens self-calibration: learnt a radial k1 of {:+.4} beyond the calibration from {} turning windows",
+            l.learnt_k1, l.turning_windows
+        );
+    }
+    format!(
+        "lens self-calibration: nothing learnt, {turning}; it corrects {} or more",
+        p.lens_min_k1
+    )
 }

@@ -134,6 +134,12 @@ pub struct TrackerConfig {
     /// the tracker: under forward motion a radial term and depth trade off and the
     /// readings wander.
     pub lens_min_rotation_deg: f64,
+    /// The smallest radial error the tracker corrects: it starts learning only once the
+    /// turning windows' unattenuated readings (every keyframe free but the two oldest)
+    /// average at least this far from the calibration. Below it, keypoint noise biases the
+    /// readings by as much as the error (the tracker's scale is better left to the
+    /// calibration there).
+    pub lens_min_k1: f64,
     /// Essential-matrix RANSAC.
     pub ransac: RansacConfig,
     /// PnP RANSAC.
@@ -175,6 +181,7 @@ impl Default for TrackerConfig {
             lens_check: false,
             lens_self_calibration: false,
             lens_min_rotation_deg: 10.0,
+            lens_min_k1: 0.005,
             ransac: RansacConfig::default(),
             pnp: PnpConfig::default(),
         }

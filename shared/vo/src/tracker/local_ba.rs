@@ -155,7 +155,8 @@ impl Tracker {
         };
         let (c0, c1) = match outcome {
             BaOutcome::Solved(c0, c1) => {
-                self.read_lens(&ba);
+                let ids: Vec<usize> = window.iter().chain(&anchors).copied().collect();
+                self.read_lens(&ba, &ids);
                 (c0, c1)
             }
             BaOutcome::Deferred(id) => {
