@@ -66,7 +66,7 @@ fn the_keyframe_ratio_rule_adds_keyframes() {
 /// `--lens-check` reports what the local BAs say about the lens: on KITTI 00 (through its
 /// turn) a positive radial coefficient beyond the calibration, as on every KITTI clip with
 /// turns (docs/decisions/2026-12-07-kitti-lens-residual-and-turn-scale.md; +0.0022 here, and
-/// +0.0104 from the turning windows alone).
+/// +0.0115 from the turning windows alone).
 #[test]
 fn the_lens_check_reads_kittis_radial_residual() {
     let Some(seq) = common::shared_data("kitti/sequences/00") else {

@@ -16,7 +16,7 @@
 //! starts seeing through that mean once it stands clear of the calibration by
 //! `TrackerConfig::lens_min_k1` (0.005) beyond twice its scatter: keypoint noise biases the
 //! readings by up to a few 1e-3 (the rendered `urban-loop` drive, whose lens is exact, reads
-//! -0.0015), and the tracker is as sensitive to such a lens error as to the calibration's
+//! -0.0016), and the tracker is as sensitive to such a lens error as to the calibration's
 //! own. From then on every turning window moves the lens to the updated mean, and every
 //! observation the map holds is re-read through it, so that old and new observations of a
 //! landmark agree (without that, the mixed bearings of the turn in which k1 is learnt step
