@@ -215,6 +215,13 @@ fn multiprocess_lossless_equals_inprocess_bit_for_bit_on_kitti_03() {
         assert_eq!(rec.keyframe, out.keyframe, "frame {i}");
     }
     assert_eq!(records[n].status, "end");
+    // the lens learnt while driving (the default) is learnt alike in the daemon, whose
+    // tracking stage reads it from the windows the back end solved, and reported
+    let lens = std::fs::read_to_string(tmp.path().join(tracking::LENS_FILE)).unwrap();
+    let lens: supermvo_vo::tracker::LensResidual = serde_json::from_str(&lens).unwrap();
+    assert!(p.lens_self_calibration);
+    assert_eq!(Some(lens), vo.tracker().lens_residual());
+    assert!(lens.learnt_k1 > 0.0, "{lens:?}");
     // the local mapping ran in the back-end process: the triangulations of every keyframe
     // tracked against the map (not those that initialise one) and every local BA (the
     // tracker does such work itself only when no back end answers)

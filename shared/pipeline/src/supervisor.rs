@@ -263,6 +263,7 @@ pub fn run(opts: &SupervisorOptions) -> Result<RunMetrics> {
         "trajectory.kitti.txt",
         crate::loop_closing::KEYFRAMES_FILE,
         "loops.json",
+        crate::tracking::LENS_FILE,
         crate::remote_mapping::BA_LOG_FILE,
         crate::remote_mapping::TRIANGULATION_LOG_FILE,
     ] {

@@ -302,12 +302,27 @@ pub fn run(args: &StageArgs) -> Result<()> {
             };
             ctx.frame_done(&h, t_in, feats.len());
             if h.status() == Status::EndOfStream {
+                write_lens(&args.out, &tracker)?;
                 ctx.finished();
             }
         }
         ctx.heartbeat_if_idle();
     }
     Ok(())
+}
+
+/// The run's folder file with what the tracker read and learnt about the lens
+/// ([`Tracker::lens_residual`]), for the run's report; none when it read nothing.
+pub const LENS_FILE: &str = "lens.json";
+
+/// Writes [`LENS_FILE`] at the end of the run.
+fn write_lens(out: &std::path::Path, tracker: &Tracker) -> Result<()> {
+    let Some(lens) = tracker.lens_residual() else {
+        return Ok(());
+    };
+    let path = out.join(LENS_FILE);
+    std::fs::write(&path, serde_json::to_string_pretty(&lens)?)
+        .map_err(|e| anyhow::anyhow!("writing {}: {e}", path.display()))
 }
 
 /// A tracked frame's pose message, after its features went to the back end when it became a

@@ -230,9 +230,6 @@ pub fn run(args: &RunArgs) -> Result<()> {
             cfg.pipeline.loops
         );
     }
-    if cfg.pipeline.lens_check && args.mode == Mode::Multiprocess {
-        bail!("--lens-check (pipeline.lens_check) works in the in-process run only; add --mode inprocess");
-    }
     let mut seq = Sequence::open_with_camera(&args.seq_dir, cfg.pipeline.camera.as_deref())?;
     let lens = features::keypoint_lens(&cfg.pipeline, &mut seq);
     check_calibration(&seq)?;
@@ -625,10 +622,21 @@ fn run_multiprocess(
     if cfg.pipeline.loop_closure {
         outln!("loops closed: {}", loops.as_array().map_or(0, |l| l.len()));
     }
+    let lens: Option<serde_json::Value> =
+        std::fs::read_to_string(args.out.join(supermvo_pipeline::tracking::LENS_FILE))
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok());
+    if let Some(l) = lens
+        .as_ref()
+        .and_then(|l| serde_json::from_value(l.clone()).ok())
+    {
+        outln!("{}", lens_summary(&l, &cfg.pipeline));
+    }
     let report = serde_json::json!({
         "mode": "multiprocess",
         "interrupted": metrics.interrupted,
         "loops": loops,
+        "lens_residual": lens,
         "sequence": seq.dir, "frames": records.iter().filter(|r| r.status != "end").count(),
         "estimated": est.len(), "lost": lost,
         "unposed_frames": unposed,

@@ -175,15 +175,6 @@ fn bad_sequences_are_clear_errors() {
         ],
         &["--loops 2", "daemon only", "drop --mode inprocess"],
     );
-    // the lens check asked of the daemon, which does not report it
-    common::expect_error(
-        &["run", seq.to_str().unwrap(), "--lens-check"],
-        &[
-            "--lens-check",
-            "in-process run only",
-            "add --mode inprocess",
-        ],
-    );
 }
 
 /// A KITTI 00 excerpt with a black frame, a stretch without motion (one frame repeated) and a

@@ -201,7 +201,7 @@ impl Tracker {
 
 /// The radial coefficient a run's local BAs ask for beyond the tracker's lens
 /// ([`Tracker::lens_residual`]).
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct LensResidual {
     /// Information-weighted mean of the windows' readings (normalised coordinates,
     /// `x (1 + k1 |x|^2)`), each beyond the lens of its moment.
