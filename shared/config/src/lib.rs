@@ -212,9 +212,9 @@ pub struct PipelineConfig {
     /// error exceeds this many times the PnP gate (2 px), [1, 10].
     pub robust_cutoff: f64,
     /// After every local BA, read the radial coefficient its observations ask for beyond
-    /// the calibration, and report the run's information-weighted mean (`supermvo run` in
-    /// process: a summary line and `lens_residual` in report.json). A diagnostic of the
-    /// lens model; it changes no pose.
+    /// the calibration, and report the run's information-weighted mean (`supermvo run`: a
+    /// summary line and `lens_residual` in report.json; in the daemon only where the local
+    /// BA is solved at once, lossless). A diagnostic of the lens model; it changes no pose.
     pub lens_check: bool,
     /// Learn the radial coefficient k1 the calibration misses from the local BAs of windows
     /// that turn, and see every observation through it from then on (in process and the

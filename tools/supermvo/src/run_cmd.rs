@@ -92,7 +92,7 @@ pub struct RunArgs {
     #[arg(long)]
     keyframe_matching: bool,
     /// Report the radial lens coefficient k1 that the local BAs ask for beyond the
-    /// calibration (in process; changes no pose) [pipeline.lens_check].
+    /// calibration (changes no pose) [pipeline.lens_check].
     #[arg(long)]
     lens_check: bool,
     /// Learn the radial lens coefficient k1 the calibration misses while driving (the
