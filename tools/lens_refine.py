@@ -139,8 +139,9 @@ def main():
         def reading(k1):
             cam, out = os.path.join(tmp, f"lens_{k1:+.6f}.yaml"), os.path.join(tmp, f"run_{k1:+.6f}")
             write_lens(cam, dict(lens, k1=k1), size)
+            # the reading beyond this camera file's lens, not beyond a lens learnt on the way
             cmd = [args.bin, "run", args.seq, "--mode", "inprocess", "--quiet", "--lens-check",
-                   "--camera", cam, "--out", out] + args.extra
+                   "--no-lens-self-calibration", "--camera", cam, "--out", out] + args.extra
             r = subprocess.run(cmd, capture_output=True, text=True)
             if r.returncode != 0:
                 sys.exit(f"lens_refine: `{' '.join(cmd)}` failed:\n{r.stderr[-2000:]}")
