@@ -26,6 +26,8 @@ same ones.
 `--lens-k1 K` gives every sequence a camera file (`camera.yaml` beside `calib.txt`) with the
 clip's own intrinsics and the radial coefficient K, so the tracker undistorts the keypoints
 with it: a lens-model study (docs/decisions/2026-12-07-kitti-lens-residual-and-turn-scale.md).
+The tracker still learns a lens beyond it while driving (the default); add
+`-- --no-lens-self-calibration` to study the camera file's lens alone.
 
 `--seeds` runs every sequence with each RANSAC seed and reports the run with the median
 APE; `--jobs` runs that many at once (for accuracy; timing needs one at a time). With
