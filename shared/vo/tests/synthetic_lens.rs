@@ -76,11 +76,9 @@ fn the_lens_check_changes_no_pose() {
     assert_eq!(off, on);
 }
 
-/// A drive with three 90-degree turns, the keypoints seen through a lens whose radial
-/// coefficient the calibration misses by `lens_k1`: the radial coefficient the tracker had
-/// learnt at the end (0 without self-calibration) and the scale of the last 10 frames over
-/// the first 10 after the initialisation.
-fn three_turns(lens_k1: f64, self_calibration: bool) -> (f64, f64) {
+/// The tracker's settings and a drive with three 90-degree turns through a lens the
+/// calibration misses by `lens_k1`.
+fn three_turn_drive(lens_k1: f64, self_calibration: bool) -> (TrackerConfig, Drive) {
     let cfg = TrackerConfig {
         lens_self_calibration: self_calibration,
         ..TrackerConfig::default()
@@ -92,6 +90,15 @@ fn three_turns(lens_k1: f64, self_calibration: bool) -> (f64, f64) {
         frames: STRAIGHT + (turns - 1) * TURN_PERIOD + TURN + 70,
         ..Drive::default()
     };
+    (cfg, drive)
+}
+
+/// A drive with three 90-degree turns, the keypoints seen through a lens whose radial
+/// coefficient the calibration misses by `lens_k1`: the radial coefficient the tracker had
+/// learnt at the end (0 without self-calibration) and the scale of the last 10 frames over
+/// the first 10 after the initialisation.
+fn three_turns(lens_k1: f64, self_calibration: bool) -> (f64, f64) {
+    let (cfg, drive) = three_turn_drive(lens_k1, self_calibration);
     let mut learnt = 0.0;
     let (traj, ..) = run_counted_with(0, (0.5, 0.1), cfg, drive, |_, t| {
         learnt = t.lens_residual().map_or(0.0, |r| r.learnt_k1);
@@ -135,16 +142,7 @@ fn an_exact_lens_is_not_learnt_from_noisier_keypoints() {
         return;
     }
     for scene in 0..4 {
-        let cfg = TrackerConfig {
-            lens_self_calibration: true,
-            ..TrackerConfig::default()
-        };
-        let turns = 3;
-        let drive = Drive {
-            turns,
-            frames: STRAIGHT + (turns - 1) * TURN_PERIOD + TURN + 70,
-            ..Drive::default()
-        };
+        let (cfg, drive) = three_turn_drive(0.0, true);
         let mut reading = None;
         run_counted_with(scene, (1.0, 0.1), cfg, drive, |_, t| {
             reading = t.lens_residual();
