@@ -9,7 +9,7 @@ use crate::common::{receive_features, send_value, stamp, StageArgs, StageContext
 use crate::inbox::Inbox;
 use crate::loop_feedback::LoopFeedback;
 use crate::remote_mapping::RemoteMapping;
-use anyhow::Result;
+use anyhow::{Context, Result};
 use std::time::Duration;
 use supermvo_config::{IngestMode, PipelineConfig};
 use supermvo_dataset::Sequence;
@@ -322,7 +322,7 @@ fn write_lens(out: &std::path::Path, tracker: &Tracker) -> Result<()> {
     };
     let path = out.join(LENS_FILE);
     std::fs::write(&path, serde_json::to_string_pretty(&lens)?)
-        .map_err(|e| anyhow::anyhow!("writing {}: {e}", path.display()))
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 /// A tracked frame's pose message, after its features went to the back end when it became a

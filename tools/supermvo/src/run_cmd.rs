@@ -622,15 +622,12 @@ fn run_multiprocess(
     if cfg.pipeline.loop_closure {
         outln!("loops closed: {}", loops.as_array().map_or(0, |l| l.len()));
     }
-    let lens: Option<serde_json::Value> =
+    let lens: Option<supermvo_vo::tracker::LensResidual> =
         std::fs::read_to_string(args.out.join(supermvo_pipeline::tracking::LENS_FILE))
             .ok()
             .and_then(|t| serde_json::from_str(&t).ok());
-    if let Some(l) = lens
-        .as_ref()
-        .and_then(|l| serde_json::from_value(l.clone()).ok())
-    {
-        outln!("{}", lens_summary(&l, &cfg.pipeline));
+    if let Some(l) = &lens {
+        outln!("{}", lens_summary(l, &cfg.pipeline));
     }
     let report = serde_json::json!({
         "mode": "multiprocess",

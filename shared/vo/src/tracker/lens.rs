@@ -13,14 +13,15 @@
 //! radial term and depth trade off, and the readings of straight windows wander. So the
 //! tracker keeps the information-weighted mean of the lenses its turning windows ask for
 //! (those whose keyframes span `TrackerConfig::lens_min_rotation_deg`, 10 degrees), and
-//! starts seeing through that mean once it stands clear of the calibration by
+//! starts learning only once that mean stands clear of the calibration by
 //! `TrackerConfig::lens_min_k1` (0.005) beyond twice its scatter: keypoint noise biases the
 //! readings by up to a few 1e-3 (the rendered `urban-loop` drive, whose lens is exact, reads
 //! -0.0016), and the tracker is as sensitive to such a lens error as to the calibration's
-//! own. From then on every turning window moves the lens to the updated mean, and every
-//! observation the map holds is re-read through it, so that old and new observations of a
-//! landmark agree (without that, the mixed bearings of the turn in which k1 is learnt step
-//! the scale the other way).
+//! own. From then on every turning window moves k1 by its own reading (the window as
+//! solved, anchors fixed), kept between the calibration and twice the mean that opened the
+//! gate, and every observation the map holds is re-read through the new lens, so that old
+//! and new observations of a landmark agree (without that, the mixed bearings of the turn
+//! in which k1 is learnt step the scale the other way).
 //!
 //! Frames: bearings are `(x, y, 1)` in the camera frame (normalised coordinates).
 
@@ -147,8 +148,12 @@ impl Tracker {
         if !(self.cfg.lens_check || self.cfg.lens_self_calibration) {
             return;
         }
-        let reading = ba.radial_residual();
-        self.lens_readings.add(reading);
+        // every window's reading is a diagnostic (`lens_check`); learning needs only the
+        // turning windows'
+        let checked = self.cfg.lens_check.then(|| ba.radial_residual());
+        if let Some(reading) = checked {
+            self.lens_readings.all.add(reading);
+        }
         let span_deg = window_rotation_deg(ba);
         if span_deg < self.cfg.lens_min_rotation_deg {
             return;
@@ -168,7 +173,10 @@ impl Tracker {
             }
             self.lens_readings.engaged = Some(mean);
         }
-        let (Some(r), Some(evidence)) = (reading, self.lens_readings.engaged) else {
+        let Some(evidence) = self.lens_readings.engaged else {
+            return;
+        };
+        let Some(r) = checked.unwrap_or_else(|| ba.radial_residual()) else {
             return;
         };
         // between the calibration and twice what the turning windows read
@@ -193,9 +201,10 @@ impl Tracker {
     }
 
     /// What the local BAs so far say about the lens (with `TrackerConfig::lens_check` or
-    /// `lens_self_calibration`; `None` when off or when no window determined it).
+    /// `lens_self_calibration`; `None` when both are off).
     pub fn lens_residual(&self) -> Option<LensResidual> {
-        self.lens_readings.summary(self.calib.k1)
+        (self.cfg.lens_check || self.cfg.lens_self_calibration)
+            .then(|| self.lens_readings.summary(self.calib.k1))
     }
 }
 
@@ -204,11 +213,12 @@ impl Tracker {
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct LensResidual {
     /// Information-weighted mean of the windows' readings (normalised coordinates,
-    /// `x (1 + k1 |x|^2)`), each beyond the lens of its moment.
-    pub k1: f64,
+    /// `x (1 + k1 |x|^2)`), each beyond the lens of its moment (with
+    /// `TrackerConfig::lens_check`; `None` without, or when no window determined it).
+    pub k1: Option<f64>,
     /// Its standard error were the windows independent (they share observations, so the
     /// true one is larger).
-    pub std_error: f64,
+    pub std_error: Option<f64>,
     /// Windows that determined it.
     pub windows: usize,
     /// Information-weighted mean of the turning windows' unattenuated readings (every
@@ -282,21 +292,17 @@ impl Mean {
 }
 
 impl LensReadings {
-    fn add(&mut self, reading: Option<RadialResidual>) {
-        self.all.add(reading);
-    }
-
     /// The readings so far, with the tracker's learnt radial coefficient `learnt_k1`.
-    fn summary(&self, learnt_k1: f64) -> Option<LensResidual> {
-        let k1 = self.all.mean()?;
-        Some(LensResidual {
+    fn summary(&self, learnt_k1: f64) -> LensResidual {
+        let k1 = self.all.mean();
+        LensResidual {
             k1,
-            std_error: self.all.std_error(),
+            std_error: k1.map(|_| self.all.std_error()),
             windows: self.all.windows,
             turning_k1: self.turning.mean(),
             turning_windows: self.turning.windows,
             learnt_k1,
-        })
+        }
     }
 }
 
