@@ -34,6 +34,36 @@ fn frames_between_keyframes_are_tracked_without_the_matcher() {
     }
 }
 
+/// With the matcher only for keyframes, the frame that becomes a keyframe by the frame count
+/// alone (`max_frames_between_keyframes` after the last) is matched at once, not tracked by
+/// projection first and then matched; the frames before it are offered to projection.
+#[test]
+fn a_keyframe_due_by_the_frame_count_is_matched_at_once() {
+    let cfg = TrackerConfig {
+        match_every_frame: false,
+        ..TrackerConfig::default()
+    };
+    let limit = cfg.max_frames_between_keyframes;
+    let (mut due, mut offered, mut late) = (0, 0, Vec::new());
+    run_counted_with(0, (0.5, 0.1), cfg, Drive::default(), |k, tracker| {
+        let Some(since) = tracker.reference().map(|(r, _)| k - r) else {
+            return;
+        };
+        let wants = tracker.wants_matches();
+        if since >= limit {
+            due += 1;
+            if !wants {
+                late.push(k);
+            }
+        } else if !wants {
+            offered += 1;
+        }
+    });
+    println!("{due} frames due by the count, {offered} offered to projection");
+    assert!(due > 10 && offered > 10, "{due} due, {offered} offered");
+    assert!(late.is_empty(), "tried by projection first: {late:?}");
+}
+
 /// The local mapping run elsewhere (as the daemon's back end does: each keyframe's
 /// triangulations and its local BA) with the same solvers gives the trajectory bit for bit,
 /// every window goes through the solver, and so does every triangulation the keyframes need.

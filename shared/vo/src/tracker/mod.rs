@@ -206,8 +206,11 @@ impl Tracker {
 
     /// Whether the next frame must come with the matcher's matches to [`Tracker::reference`]
     /// (otherwise [`Tracker::track_without_matches`] is tried first): always with
-    /// `match_every_frame`; otherwise while initialising, after a lost frame, and when there
-    /// is no motion model or too little of the last frame to track by projection.
+    /// `match_every_frame`; otherwise while initialising, after a lost frame, when there
+    /// is no motion model or too little of the last frame to track by projection, and when
+    /// the next frame becomes a keyframe whatever it tracks (`max_frames_between_keyframes`:
+    /// its new landmarks come from the matches, so tracking it by projection first would be
+    /// work thrown away).
     pub fn wants_matches(&self) -> bool {
         let initialised = self
             .keyframe
@@ -221,6 +224,7 @@ impl Tracker {
                 .last_frame
                 .as_ref()
                 .is_none_or(|l| l.len() < self.cfg.min_tracked)
+            || self.frames_since_keyframe + 1 >= self.cfg.max_frames_between_keyframes
     }
 
     /// Tracks one frame, calling `matcher(reference, frame)` for its matches to the
