@@ -25,9 +25,15 @@ impl Tracker {
                 .count()
         };
         tracked < self.cfg.keyframe_min_tracked
-            || frames >= self.cfg.max_frames_between_keyframes
+            || self.keyframe_due_by_count(frames)
             || (self.cfg.keyframe_ratio > 0.0
                 && (tracked as f64) < self.cfg.keyframe_ratio * established() as f64)
+    }
+
+    /// Whether the frame `frames` frames after the last keyframe becomes one whatever it
+    /// tracks (`max_frames_between_keyframes`).
+    pub(super) fn keyframe_due_by_count(&self, frames: usize) -> bool {
+        frames >= self.cfg.max_frames_between_keyframes
     }
 
     /// Makes the frame a keyframe: its inlier landmark matches (from the keyframe and from

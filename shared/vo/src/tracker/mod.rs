@@ -224,7 +224,7 @@ impl Tracker {
                 .last_frame
                 .as_ref()
                 .is_none_or(|l| l.len() < self.cfg.min_tracked)
-            || self.frames_since_keyframe + 1 >= self.cfg.max_frames_between_keyframes
+            || self.keyframe_due_by_count(self.frames_since_keyframe + 1)
     }
 
     /// Tracks one frame, calling `matcher(reference, frame)` for its matches to the
