@@ -158,6 +158,11 @@ pub struct PipelineConfig {
     pub frontend: Frontend,
     /// Keypoints per frame, [64, 8192].
     pub top_k: usize,
+    /// Keypoints the matcher and loop closing are given: the strongest of each frame's
+    /// `top_k`, [0, 8192]; 0 (or `top_k` and over): all of them. Below `top_k` the tracker
+    /// still finds its landmarks among all `top_k` by projection, at the matcher's cost
+    /// of this many (docs/vo.md, "More keypoints than the matcher sees").
+    pub matcher_top_k: usize,
     /// ONNX Runtime intra-op threads per network, [1, 64].
     pub threads: usize,
     /// Intra-op threads of the feature extractor alone, [0, 64]; 0: automatic (`threads`
@@ -306,6 +311,7 @@ impl Default for PipelineConfig {
             frontend: Frontend::XfeatLighterglue,
             speed: 1.0,
             top_k: 1024,
+            matcher_top_k: 0,
             threads: 2,
             features_threads: 0,
             matching_threads: 0,
@@ -347,6 +353,12 @@ impl Default for PipelineConfig {
 }
 
 impl PipelineConfig {
+    /// Keypoints the matcher and loop closing are given (see `matcher_top_k`): `None` when
+    /// that is every keypoint of the frame.
+    pub fn matcher_keypoints(&self) -> Option<usize> {
+        (self.matcher_top_k > 0 && self.matcher_top_k < self.top_k).then_some(self.matcher_top_k)
+    }
+
     /// Intra-op threads of the feature extractor placed as given.
     pub fn extractor_threads(&self, placement: NetworkPlacement) -> usize {
         self.stage_threads(self.features_threads, placement)
@@ -439,6 +451,7 @@ impl PipelineConfig {
             });
         }
         range("top_k", self.top_k, 64, 8192)?;
+        range("matcher_top_k", self.matcher_top_k, 0, 8192)?;
         range("threads", self.threads, 1, 64)?;
         range("features_threads", self.features_threads, 0, 64)?;
         range("matching_threads", self.matching_threads, 0, 64)?;
@@ -610,6 +623,22 @@ mod tests {
         assert_eq!(p.matcher_threads(one), 6);
         p.features_threads = 65;
         assert!(p.validate().is_err());
+    }
+
+    #[test]
+    fn the_matcher_sees_every_keypoint_unless_fewer_are_set() {
+        let mut p = PipelineConfig::default();
+        assert_eq!(p.matcher_keypoints(), None);
+        p.matcher_top_k = 1024;
+        assert_eq!(p.matcher_keypoints(), None, "as many as top_k: all of them");
+        p.top_k = 2048;
+        assert_eq!(p.matcher_keypoints(), Some(1024));
+        p.matcher_top_k = 4096;
+        assert_eq!(p.matcher_keypoints(), None);
+        let err = Config::from_toml("[pipeline]\nmatcher_top_k = 9000\n", Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("pipeline.matcher_top_k"), "{err}");
     }
 
     #[test]

@@ -38,6 +38,19 @@ impl Features {
         &self.descriptors[i * self.dim..(i + 1) * self.dim]
     }
 
+    /// The `k` strongest keypoints (the first `k`: scores are in descending order) with
+    /// their scores and descriptors; all of them when there are no more than `k`.
+    pub fn strongest(&self, k: usize) -> Features {
+        let n = self.len().min(k);
+        Features {
+            keypoints: self.keypoints[..n].to_vec(),
+            scores: self.scores[..n].to_vec(),
+            descriptors: self.descriptors[..n * self.dim].to_vec(),
+            dim: self.dim,
+            image_size: self.image_size,
+        }
+    }
+
     /// Moves every keypoint to `to(x, y)`, dropping (with its score and descriptor) each
     /// one for which it gives `None`; the order of the rest is kept.
     pub fn map_keypoints(&mut self, to: impl Fn(f32, f32) -> Option<[f32; 2]>) {
@@ -129,6 +142,25 @@ impl FrameView {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_strongest_keypoints_are_the_first_with_their_scores_and_descriptors() {
+        let f = Features {
+            keypoints: vec![[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]],
+            scores: vec![0.9, 0.5, 0.1],
+            descriptors: vec![1.0, 0.0, 0.0, 1.0, 0.6, 0.8],
+            dim: 2,
+            image_size: (10, 8),
+        };
+        let two = f.strongest(2);
+        assert_eq!(two.keypoints, vec![[1.0, 2.0], [3.0, 4.0]]);
+        assert_eq!(two.scores, vec![0.9, 0.5]);
+        assert_eq!(two.descriptors, vec![1.0, 0.0, 0.0, 1.0]);
+        assert_eq!((two.dim, two.image_size), (2, (10, 8)));
+        assert_eq!(f.strongest(3), f);
+        assert_eq!(f.strongest(100), f);
+        assert!(f.strongest(0).is_empty());
+    }
 
     #[test]
     fn mapping_keypoints_drops_the_unmapped_with_their_scores_and_descriptors() {

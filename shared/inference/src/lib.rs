@@ -11,6 +11,7 @@
 //! * [`aliked::Aliked`]: ALIKED (the extractor LightGlue was trained with), detection and
 //!   deformable descriptors in one graph; [`lighterglue::LightGlue`] runs both LighterGlue
 //!   and LightGlue.
+//! * [`strongest::StrongestOnly`]: a matcher given only the strongest keypoints of each set.
 
 pub mod aliked;
 pub mod cache;
@@ -19,6 +20,7 @@ pub mod lighterglue;
 pub mod models;
 pub mod orb;
 pub mod runtime;
+pub mod strongest;
 pub mod superglue;
 pub mod superpoint;
 pub mod xfeat;

@@ -106,7 +106,7 @@ pub fn run(args: &StageArgs) -> Result<()> {
             let calib = Sequence::open_with_camera(&args.seq, cfg.camera.as_deref())?.calib;
             Some(LoopClosing::open(
                 &args.out,
-                calib,
+                (calib, crate::loop_closing::loop_config(&cfg)),
                 &read_lines(&rec.path)?,
             )?)
         }

@@ -13,6 +13,7 @@ use anyhow::{Context, Result};
 use std::collections::HashMap;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
+use supermvo_config::PipelineConfig;
 use supermvo_dataset::Calibration;
 use supermvo_geometry::Pose;
 use supermvo_inference::Features;
@@ -50,6 +51,15 @@ pub struct LoopClosing {
     restored_keyframes: usize,
 }
 
+/// The loop-closing configuration the daemon and `supermvo run --mode inprocess` both use:
+/// keyframes' strongest `pipeline.matcher_top_k` keypoints when that is set.
+pub fn loop_config(cfg: &PipelineConfig) -> LoopConfig {
+    LoopConfig {
+        keypoints: cfg.matcher_keypoints().unwrap_or(0),
+        ..LoopConfig::default()
+    }
+}
+
 impl std::fmt::Debug for LoopClosing {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "LoopClosing({:?})", self.closer)
@@ -59,7 +69,11 @@ impl std::fmt::Debug for LoopClosing {
 impl LoopClosing {
     /// Loop closing for a camera with calibration `calib`, rebuilt from what an earlier
     /// back end recorded in `out` (`lines`: `frames.csv` in the order written).
-    pub fn open(out: &Path, calib: Calibration, lines: &[Record]) -> Result<Self> {
+    pub fn open(
+        out: &Path,
+        (calib, cfg): (Calibration, LoopConfig),
+        lines: &[Record],
+    ) -> Result<Self> {
         let path = out.join(KEYFRAMES_FILE);
         let mut features = if lines.is_empty() {
             HashMap::new()
@@ -67,7 +81,7 @@ impl LoopClosing {
             KeyframeLog::read(&path)?
         };
         let mut me = Self {
-            closer: LoopCloser::new(calib, LoopConfig::default()),
+            closer: LoopCloser::new(calib, cfg),
             log: KeyframeLog::open(&path, lines.is_empty())?,
             last_verdict: None,
             restored_keyframes: 0,

@@ -15,6 +15,7 @@ use std::time::Duration;
 use supermvo_config::{Frontend, NetworkPlacement, PipelineConfig};
 use supermvo_inference::lighterglue::{LightGlue, LightGlueConfig};
 use supermvo_inference::orb::OrbMatcher;
+use supermvo_inference::strongest::StrongestOnly;
 use supermvo_inference::superglue::{SuperGlue, SuperGlueConfig};
 use supermvo_inference::{models, Features, Matcher};
 use supermvo_messages::iceoryx2::port::update_connections::UpdateConnections;
@@ -23,8 +24,21 @@ use supermvo_messages::{
     now_ns, FrameHeader, MatchEntry, MatchRequest, MessageError, PoseMsg, StageKind, Status, Topic,
 };
 
-/// The matcher the daemon and `supermvo run --mode inprocess` both use.
+/// The matcher the daemon and `supermvo run --mode inprocess` both use, given only the
+/// strongest `pipeline.matcher_top_k` keypoints of each frame when that is set.
 pub fn matcher(
+    cfg: &PipelineConfig,
+    placement: NetworkPlacement,
+) -> Result<Box<dyn Matcher + Send>> {
+    let full = frontend_matcher(cfg, placement)?;
+    Ok(match cfg.matcher_keypoints() {
+        Some(k) => Box::new(StrongestOnly::new(full, k)),
+        None => full,
+    })
+}
+
+/// The front end's matcher, given every keypoint.
+fn frontend_matcher(
     cfg: &PipelineConfig,
     placement: NetworkPlacement,
 ) -> Result<Box<dyn Matcher + Send>> {

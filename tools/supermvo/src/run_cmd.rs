@@ -12,8 +12,8 @@ use supermvo_eval::{evaluate, EvalOptions};
 use supermvo_geometry::AlignmentKind;
 use supermvo_pipeline::backend::{read_records, write_trajectories};
 use supermvo_pipeline::supervisor::{default_bin_dir, SupervisorOptions};
-use supermvo_pipeline::{features, matching, tracking};
-use supermvo_vo::loops::{LoopCloser, LoopConfig, ReportedPose};
+use supermvo_pipeline::{features, loop_closing, matching, tracking};
+use supermvo_vo::loops::{LoopCloser, ReportedPose};
 use supermvo_vo::pipeline::VoPipeline;
 use supermvo_vo::stage::Timed;
 use supermvo_vo::tracker::{FrameInput, Tracker, TrackingState};
@@ -71,6 +71,10 @@ pub struct RunArgs {
     /// Keypoints per frame, 64-8192 [config: pipeline.top_k].
     #[arg(long, value_parser = crate::keypoint_count)]
     top_k: Option<usize>,
+    /// Keypoints the matcher and loop closing are given, the strongest of each frame's
+    /// top-k; 0: all [pipeline.matcher_top_k].
+    #[arg(long, value_parser = crate::count_in::<0, 8192>)]
+    matcher_top_k: Option<usize>,
     /// Keyframes in the local bundle-adjustment window, 0 disables it [pipeline.ba_window].
     #[arg(long, value_parser = crate::count_in::<0, 30>)]
     ba_window: Option<usize>,
@@ -144,6 +148,9 @@ impl RunArgs {
         let p = &mut cfg.pipeline;
         if let Some(v) = self.top_k {
             p.top_k = v;
+        }
+        if let Some(v) = self.matcher_top_k {
+            p.matcher_top_k = v;
         }
         if let Some(v) = self.ba_window {
             p.ba_window = v;
@@ -390,11 +397,14 @@ fn network_cache((extractor, matcher): Networks, p: &supermvo_config::PipelineCo
     let tag = format!(
         "{:?} top_k={} subpixel={} width={} depth={}",
         p.frontend, p.top_k, p.subpixel_keypoints, p.width_confidence, p.depth_confidence
-    ) + &if p.image_scale == 1.0 {
-        String::new()
-    } else {
-        format!(" scale={}", p.image_scale)
-    };
+    ) + &p
+        .matcher_keypoints()
+        .map_or(String::new(), |k| format!(" matcher_top_k={k}"))
+        + &if p.image_scale == 1.0 {
+            String::new()
+        } else {
+            format!(" scale={}", p.image_scale)
+        };
     let dir = PathBuf::from(dir);
     (
         Box::new(Cached::new(extractor, &dir, &tag)),
@@ -412,7 +422,7 @@ fn run_inprocess(
     let tracker = Tracker::new(seq.calib, tracking::tracker_config(p));
     let loops = p
         .loop_closure
-        .then(|| LoopCloser::new(seq.calib, LoopConfig::default()));
+        .then(|| LoopCloser::new(seq.calib, loop_closing::loop_config(p)));
     let mut recording = match &args.recording.record {
         Some(path) => Some(InprocessRecording::create(path, args.recording.options())?),
         None => None,

@@ -3,6 +3,9 @@
 /// Loop-closure settings.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LoopConfig {
+    /// Keypoints of each keyframe that place recognition and verification use: its
+    /// strongest (the first); 0: all of them.
+    pub keypoints: usize,
     /// Words of the VLAD vocabulary.
     pub vocabulary_size: usize,
     /// Keyframes whose descriptors train the vocabulary.
@@ -43,6 +46,7 @@ pub struct LoopConfig {
 impl Default for LoopConfig {
     fn default() -> Self {
         Self {
+            keypoints: 0,
             vocabulary_size: 32,
             vocabulary_keyframes: 10,
             min_separation: 40,

@@ -219,3 +219,43 @@ fn later_loops_solve_only_what_came_since_the_map_was_tied() {
     assert!(a < 1.5 * b + 0.1, "{a:.3} m against {b:.3} m");
     assert!(a < 2.0, "{a:.3} m");
 }
+
+/// With `keypoints` set, the loop closer works on each keyframe's strongest keypoints only:
+/// keyframes padded with weaker keypoints (descriptors that copy real ones, at random
+/// places) close the same loops, with the same inliers, as the strongest alone.
+#[test]
+fn only_the_strongest_keypoints_reach_place_recognition() {
+    const STRONGEST: usize = 40;
+    let ring = Ring::new();
+    let run = |keypoints: usize, padded: bool| {
+        let cfg = LoopConfig {
+            keypoints,
+            ..LoopConfig::default()
+        };
+        let mut closer = LoopCloser::new(ring.calib, cfg);
+        for k in 0..2 * KEYFRAMES_PER_LAP {
+            let mut f = ring.features(k).strongest(STRONGEST);
+            assert_eq!(f.len(), STRONGEST, "keyframe {k} sees too few points");
+            if padded {
+                let mut s = 5000 + k as u64;
+                for i in 0..STRONGEST {
+                    let (u, v) = (320.0 + 320.0 * lcg(&mut s), 240.0 + 240.0 * lcg(&mut s));
+                    f.keypoints.push([u as f32, v as f32]);
+                    f.scores.push(0.5);
+                    let copied = f.descriptor(i).to_vec();
+                    f.descriptors.extend(copied);
+                }
+            }
+            closer.add_keyframe(k, &Ring::pose(k), &f);
+        }
+        closer.loops().to_vec()
+    };
+    let strongest = run(0, false);
+    assert!(!strongest.is_empty(), "the ring's second lap closes loops");
+    assert_eq!(run(STRONGEST, true), strongest);
+    assert_ne!(
+        run(0, true),
+        strongest,
+        "the padding is seen when every keypoint is used"
+    );
+}
