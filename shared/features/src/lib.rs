@@ -39,16 +39,19 @@ impl Features {
     }
 
     /// The `k` strongest keypoints (the first `k`: scores are in descending order) with
-    /// their scores and descriptors; all of them when there are no more than `k`.
-    pub fn strongest(&self, k: usize) -> Features {
-        let n = self.len().min(k);
-        Features {
-            keypoints: self.keypoints[..n].to_vec(),
-            scores: self.scores[..n].to_vec(),
-            descriptors: self.descriptors[..n * self.dim].to_vec(),
+    /// their scores and descriptors; these features themselves, not a copy, when there are
+    /// no more than `k`.
+    pub fn strongest(&self, k: usize) -> std::borrow::Cow<'_, Features> {
+        if self.len() <= k {
+            return std::borrow::Cow::Borrowed(self);
+        }
+        std::borrow::Cow::Owned(Features {
+            keypoints: self.keypoints[..k].to_vec(),
+            scores: self.scores[..k].to_vec(),
+            descriptors: self.descriptors[..k * self.dim].to_vec(),
             dim: self.dim,
             image_size: self.image_size,
-        }
+        })
     }
 
     /// Moves every keypoint to `to(x, y)`, dropping (with its score and descriptor) each
@@ -157,8 +160,8 @@ mod tests {
         assert_eq!(two.scores, vec![0.9, 0.5]);
         assert_eq!(two.descriptors, vec![1.0, 0.0, 0.0, 1.0]);
         assert_eq!((two.dim, two.image_size), (2, (10, 8)));
-        assert_eq!(f.strongest(3), f);
-        assert_eq!(f.strongest(100), f);
+        assert_eq!(*f.strongest(3), f);
+        assert_eq!(*f.strongest(100), f);
         assert!(f.strongest(0).is_empty());
     }
 

@@ -106,7 +106,8 @@ pub fn run(args: &StageArgs) -> Result<()> {
             let calib = Sequence::open_with_camera(&args.seq, cfg.camera.as_deref())?.calib;
             Some(LoopClosing::open(
                 &args.out,
-                (calib, crate::loop_closing::loop_config(&cfg)),
+                calib,
+                crate::loop_closing::loop_config(&cfg),
                 &read_lines(&rec.path)?,
             )?)
         }

@@ -55,7 +55,7 @@ pub struct LoopClosing {
 /// keyframes' strongest `pipeline.matcher_top_k` keypoints when that is set.
 pub fn loop_config(cfg: &PipelineConfig) -> LoopConfig {
     LoopConfig {
-        keypoints: cfg.matcher_keypoints().unwrap_or(0),
+        keypoints: cfg.matcher_keypoints(),
         ..LoopConfig::default()
     }
 }
@@ -67,13 +67,9 @@ impl std::fmt::Debug for LoopClosing {
 }
 
 impl LoopClosing {
-    /// Loop closing for a camera with calibration `calib`, rebuilt from what an earlier
-    /// back end recorded in `out` (`lines`: `frames.csv` in the order written).
-    pub fn open(
-        out: &Path,
-        (calib, cfg): (Calibration, LoopConfig),
-        lines: &[Record],
-    ) -> Result<Self> {
+    /// Loop closing with `cfg` for a camera with calibration `calib`, rebuilt from what an
+    /// earlier back end recorded in `out` (`lines`: `frames.csv` in the order written).
+    pub fn open(out: &Path, calib: Calibration, cfg: LoopConfig, lines: &[Record]) -> Result<Self> {
         let path = out.join(KEYFRAMES_FILE);
         let mut features = if lines.is_empty() {
             HashMap::new()

@@ -394,17 +394,16 @@ fn network_cache((extractor, matcher): Networks, p: &supermvo_config::PipelineCo
         return (extractor, matcher);
     };
     use supermvo_inference::cache::Cached;
-    let tag = format!(
+    let mut tag = format!(
         "{:?} top_k={} subpixel={} width={} depth={}",
         p.frontend, p.top_k, p.subpixel_keypoints, p.width_confidence, p.depth_confidence
-    ) + &p
-        .matcher_keypoints()
-        .map_or(String::new(), |k| format!(" matcher_top_k={k}"))
-        + &if p.image_scale == 1.0 {
-            String::new()
-        } else {
-            format!(" scale={}", p.image_scale)
-        };
+    );
+    if let Some(k) = p.matcher_keypoints() {
+        tag += &format!(" matcher_top_k={k}");
+    }
+    if p.image_scale != 1.0 {
+        tag += &format!(" scale={}", p.image_scale);
+    }
     let dir = PathBuf::from(dir);
     (
         Box::new(Cached::new(extractor, &dir, &tag)),

@@ -4,8 +4,8 @@
 #[derive(Debug, Clone, PartialEq)]
 pub struct LoopConfig {
     /// Keypoints of each keyframe that place recognition and verification use: its
-    /// strongest (the first); 0: all of them.
-    pub keypoints: usize,
+    /// strongest (the first) this many; `None`: all of them.
+    pub keypoints: Option<usize>,
     /// Words of the VLAD vocabulary.
     pub vocabulary_size: usize,
     /// Keyframes whose descriptors train the vocabulary.
@@ -46,7 +46,7 @@ pub struct LoopConfig {
 impl Default for LoopConfig {
     fn default() -> Self {
         Self {
-            keypoints: 0,
+            keypoints: None,
             vocabulary_size: 32,
             vocabulary_keyframes: 10,
             min_separation: 40,

@@ -251,13 +251,9 @@ impl LoopCloser {
         features: &Features,
         applied: usize,
     ) -> Option<Correction> {
-        let strongest;
         let features = match self.cfg.keypoints {
-            k if k > 0 && k < features.len() => {
-                strongest = features.strongest(k);
-                &strongest
-            }
-            _ => features,
+            Some(k) => features.strongest(k),
+            None => std::borrow::Cow::Borrowed(features),
         };
         let odom = self.fix(applied).inverse().compose(&sim3_of(t_world_cam));
         let opt = match self.keyframes.last() {
