@@ -20,6 +20,7 @@
 //! [`revisits`], the settings in [`config`]; this file keeps the keyframes and decides.
 
 mod config;
+mod mutual_nearest;
 mod place_recognition;
 mod pose_graph;
 mod revisits;

@@ -2,8 +2,8 @@
 //! a nearby keyframe, mutual descriptor matches between the two places, and one similarity
 //! between their points (RANSAC, reprojection in both images).
 
+use super::mutual_nearest::{mutual_matches, mutual_matches_among};
 use super::LoopCloser;
-use nalgebra::DMatrix;
 use supermvo_geometry::essential::triangulate_checked;
 use supermvo_geometry::{umeyama, Mat3, Vec3};
 use supermvo_optim::lie::{LieGroup, Sim3};
@@ -55,18 +55,27 @@ impl LoopCloser {
     /// inlier count when it has enough.
     pub(super) fn verify(&self, i: usize, j: usize) -> Option<(Sim3, usize)> {
         let (a, b) = (&self.keyframes[i], &self.keyframes[j]);
-        let pairs: Vec<(usize, usize, Vec3, Vec3)> =
-            mutual_matches(&a.desc, &b.desc, self.cfg.min_cosine)
-                .into_iter()
-                .filter_map(|(ka, kb)| {
-                    Some((
-                        ka,
-                        kb,
-                        a.points.get(ka).copied().flatten()?,
-                        b.points.get(kb).copied().flatten()?,
-                    ))
-                })
-                .collect();
+        // only keypoints with a point on both sides can pair
+        let with_point = |k: &super::KeyframeEntry| -> Vec<usize> {
+            (0..k.desc.nrows())
+                .filter(|&n| k.points.get(n).copied().flatten().is_some())
+                .collect()
+        };
+        let pairs: Vec<(usize, usize, Vec3, Vec3)> = mutual_matches_among(
+            (&a.desc, &with_point(a)),
+            (&b.desc, &with_point(b)),
+            self.cfg.min_cosine,
+        )
+        .into_iter()
+        .filter_map(|(ka, kb)| {
+            Some((
+                ka,
+                kb,
+                a.points.get(ka).copied().flatten()?,
+                b.points.get(kb).copied().flatten()?,
+            ))
+        })
+        .collect();
         tracing::trace!(
             query = b.frame,
             candidate = a.frame,
@@ -144,128 +153,5 @@ impl LoopCloser {
             (model, inliers) = (refit, inl);
         }
         Some((model, inliers.len()))
-    }
-}
-
-/// Mutually nearest neighbours between two sets of unit descriptors (rows) with cosine
-/// similarity at least `min_cos`.
-pub(super) fn mutual_matches(
-    a: &DMatrix<f32>,
-    b: &DMatrix<f32>,
-    min_cos: f32,
-) -> Vec<(usize, usize)> {
-    if a.nrows() == 0 || b.nrows() == 0 {
-        return Vec::new();
-    }
-    // one pass down the columns (nalgebra stores them contiguously): each column's best
-    // row, and each row's best column so far; ties go to the lowest index either way
-    let sim = a * b.transpose();
-    let rows = sim.nrows();
-    let (mut row_best, mut row_arg) = (vec![f32::MIN; rows], vec![0u32; rows]);
-    let best_a: Vec<usize> = sim
-        .as_slice()
-        .chunks_exact(rows)
-        .enumerate()
-        .map(|(j, column)| {
-            for ((rb, ra), &v) in row_best.iter_mut().zip(&mut row_arg).zip(column) {
-                // a select, not a branch, so that it vectorises
-                let better = v > *rb;
-                *rb = if better { v } else { *rb };
-                *ra = if better { j as u32 } else { *ra };
-            }
-            first_argmax(column)
-        })
-        .collect();
-    row_arg
-        .iter()
-        .zip(&row_best)
-        .enumerate()
-        .filter(|&(i, (&j, &v))| v >= min_cos && best_a[j as usize] == i)
-        .map(|(i, (&j, _))| (i, j as usize))
-        .collect()
-}
-
-/// The index of the first largest value of `v` (0 if empty or all NaN), scanned eight
-/// lanes at a time so that it vectorises: each lane keeps its own first maximum, and ties
-/// between lanes go to the lowest index.
-fn first_argmax(v: &[f32]) -> usize {
-    const LANES: usize = 8;
-    let (mut best, mut at) = ([f32::MIN; LANES], [0u32; LANES]);
-    let chunks = v.chunks_exact(LANES);
-    let rest = chunks.remainder();
-    for (c, chunk) in chunks.enumerate() {
-        for l in 0..LANES {
-            let better = chunk[l] > best[l];
-            best[l] = if better { chunk[l] } else { best[l] };
-            at[l] = if better {
-                (c * LANES + l) as u32
-            } else {
-                at[l]
-            };
-        }
-    }
-    let mut winner = (0usize, f32::MIN);
-    for l in 0..LANES {
-        let i = at[l] as usize;
-        if best[l] > winner.1 || (best[l] == winner.1 && best[l] > f32::MIN && i < winner.0) {
-            winner = (i, best[l]);
-        }
-    }
-    let tail = v.len() - rest.len();
-    for (k, &x) in rest.iter().enumerate() {
-        if x > winner.1 {
-            winner = (tail + k, x);
-        }
-    }
-    winner.0
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn mutual_matches_pair_equal_rows() {
-        let a = DMatrix::<f32>::from_row_slice(3, 2, &[1.0, 0.0, 0.0, 1.0, 0.6, 0.8]);
-        let b = DMatrix::<f32>::from_row_slice(2, 2, &[0.0, 1.0, 1.0, 0.0]);
-        let m = mutual_matches(&a, &b, 0.9);
-        assert_eq!(m, vec![(0, 1), (1, 0)]);
-    }
-
-    /// The scan by columns and lanes finds what a plain scan of every row and column finds,
-    /// ties (coarse values) and odd sizes included.
-    #[test]
-    fn mutual_matches_agree_with_a_plain_scan() {
-        let mut state = 0x2545_f491u64;
-        let mut u = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
-        for (na, nb, levels) in [(37, 53, 4.0), (64, 64, 1e6), (5, 300, 3.0), (129, 17, 50.0)] {
-            let mut quantised =
-                |n: usize| DMatrix::<f32>::from_fn(n, 3, |_, _| (u() * levels).round() / levels);
-            let (a, b) = (quantised(na), quantised(nb));
-            let sim = &a * b.transpose();
-            let first_max = |v: Vec<f32>| {
-                v.iter()
-                    .enumerate()
-                    .fold((0, f32::MIN), |m, (i, &x)| if x > m.1 { (i, x) } else { m })
-            };
-            let plain: Vec<(usize, usize)> = (0..na)
-                .filter_map(|i| {
-                    let (j, v) = first_max(sim.row(i).iter().copied().collect());
-                    let back = first_max(sim.column(j).iter().copied().collect()).0;
-                    (v >= 0.1 && back == i).then_some((i, j))
-                })
-                .collect();
-            for column in sim.column_iter() {
-                let v: Vec<f32> = column.iter().copied().collect();
-                assert_eq!(first_argmax(&v), first_max(v.clone()).0, "{v:?}");
-            }
-            assert!(!plain.is_empty());
-            assert_eq!(mutual_matches(&a, &b, 0.1), plain, "{na} x {nb}");
-        }
     }
 }
