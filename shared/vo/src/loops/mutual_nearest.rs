@@ -6,7 +6,7 @@
 //! a pair (verification pairs only keypoints that have points on both sides), only those
 //! rows' nearest neighbours are computed: each wanted row of one side against every row of
 //! the other, which finds the same pairs as the whole matrix. Every similarity is the same
-//! product, term for term, as in the whole matrix (the same kernel of ONNX-free `gemm`,
+//! product, term for term, as in the whole matrix (the same `matrixmultiply` kernel,
 //! whichever rows share a block), so the pairs are the same to the last bit.
 
 use nalgebra::DMatrix;
