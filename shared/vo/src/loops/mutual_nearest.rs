@@ -29,28 +29,49 @@ pub(super) fn mutual_matches(
     if a.nrows() == 0 || b.nrows() == 0 {
         return Vec::new();
     }
-    let (mut row_best, mut row_arg) = (vec![f32::MIN; a.nrows()], vec![0u32; a.nrows()]);
+    let mut rows = RowBest::new(a.nrows());
     let mut best_a = vec![0usize; b.nrows()];
     for_each_block(a, b, |first, sim| {
         // one pass down each column (stored contiguously): its best row, and each row's
         // best column so far; ties go to the lowest index either way
         for (j, column) in sim.as_slice().chunks_exact(a.nrows()).enumerate() {
-            for ((rb, ra), &v) in row_best.iter_mut().zip(&mut row_arg).zip(column) {
-                // a select, not a branch, so that it vectorises
-                let better = v > *rb;
-                *rb = if better { v } else { *rb };
-                *ra = if better { (first + j) as u32 } else { *ra };
-            }
+            rows.take(first + j, column);
             best_a[first + j] = first_argmax(column);
         }
     });
-    row_arg
+    rows.arg
         .iter()
-        .zip(&row_best)
+        .zip(&rows.best)
         .enumerate()
         .filter(|&(i, (&j, &v))| v >= min_cos && best_a[j as usize] == i)
         .map(|(i, (&j, _))| (i, j as usize))
         .collect()
+}
+
+/// Each row's best column so far (the first on ties) and its value, kept as two arrays so
+/// that [`RowBest::take`] vectorises.
+struct RowBest {
+    best: Vec<f32>,
+    arg: Vec<u32>,
+}
+
+impl RowBest {
+    fn new(rows: usize) -> Self {
+        Self {
+            best: vec![f32::MIN; rows],
+            arg: vec![0; rows],
+        }
+    }
+
+    /// Column `j` of the similarities (one value per row) offered to every row.
+    fn take(&mut self, j: usize, column: &[f32]) {
+        for ((rb, ra), &v) in self.best.iter_mut().zip(&mut self.arg).zip(column) {
+            // a select, not a branch, so that it vectorises
+            let better = v > *rb;
+            *rb = if better { v } else { *rb };
+            *ra = if better { j as u32 } else { *ra };
+        }
+    }
 }
 
 /// [`mutual_matches`] kept to the pairs of `a`'s rows `rows_a` and `b`'s rows `rows_b`
@@ -73,32 +94,32 @@ pub(super) fn mutual_matches_among(
     }
     let from_a = nearest_rows(&selected(a, rows_a), b);
     let mut back = vec![u32::MAX; nb];
-    for (&j, (i, _)) in rows_b.iter().zip(nearest_rows(&selected(b, rows_b), a)) {
+    for (&j, &i) in rows_b
+        .iter()
+        .zip(&nearest_rows(&selected(b, rows_b), a).arg)
+    {
         back[j] = i;
     }
     rows_a
         .iter()
-        .zip(from_a)
-        .filter(|&(&i, (j, v))| v >= min_cos && back[j as usize] == i as u32)
-        .map(|(&i, (j, _))| (i, j as usize))
+        .zip(from_a.arg.iter().zip(&from_a.best))
+        .filter(|&(&i, (&j, &v))| v >= min_cos && back[j as usize] == i as u32)
+        .map(|(&i, (&j, _))| (i, j as usize))
         .collect()
 }
 
-/// For each row of `queries`, the first row of `d` most similar to it and the similarity.
-fn nearest_rows(queries: &DMatrix<f32>, d: &DMatrix<f32>) -> Vec<(u32, f32)> {
-    let mut best = vec![(0u32, f32::MIN); queries.nrows()];
-    if queries.nrows() == 0 || d.nrows() == 0 {
-        return best;
-    }
-    for_each_block(queries, d, |first, sim| {
-        for (j, column) in sim.as_slice().chunks_exact(queries.nrows()).enumerate() {
-            for (b, &v) in best.iter_mut().zip(column) {
-                let better = v > b.1;
-                *b = if better { ((first + j) as u32, v) } else { *b };
+/// For each row of `queries`, the first row of `d` most similar to it and the similarity
+/// (row 0 at `f32::MIN` where `d` is empty).
+fn nearest_rows(queries: &DMatrix<f32>, d: &DMatrix<f32>) -> RowBest {
+    let mut rows = RowBest::new(queries.nrows());
+    if queries.nrows() > 0 {
+        for_each_block(queries, d, |first, sim| {
+            for (j, column) in sim.as_slice().chunks_exact(queries.nrows()).enumerate() {
+                rows.take(first + j, column);
             }
-        }
-    });
-    best
+        });
+    }
+    rows
 }
 
 /// Hands `f` the similarities of every row of `a` with each block of `b`'s rows: the index
@@ -173,15 +194,17 @@ mod tests {
         }
     }
 
+    /// The first largest value of `v` and its index, by a plain scan.
+    fn first_max(v: Vec<f32>) -> (usize, f32) {
+        v.iter()
+            .enumerate()
+            .fold((0, f32::MIN), |m, (i, &x)| if x > m.1 { (i, x) } else { m })
+    }
+
     /// The pairs a plain scan of the whole similarity matrix finds (each row's first best
     /// column, kept where that column's first best row is the row).
     fn plain(a: &DMatrix<f32>, b: &DMatrix<f32>, min_cos: f32) -> Vec<(usize, usize)> {
         let sim = a * b.transpose();
-        let first_max = |v: Vec<f32>| {
-            v.iter()
-                .enumerate()
-                .fold((0, f32::MIN), |m, (i, &x)| if x > m.1 { (i, x) } else { m })
-        };
         (0..a.nrows())
             .filter_map(|i| {
                 let (j, v) = first_max(sim.row(i).iter().copied().collect());
@@ -222,18 +245,7 @@ mod tests {
             let sim = &a * b.transpose();
             for column in sim.column_iter() {
                 let v: Vec<f32> = column.iter().copied().collect();
-                let first =
-                    v.iter().enumerate().fold(
-                        (0, f32::MIN),
-                        |m, (i, &x)| {
-                            if x > m.1 {
-                                (i, x)
-                            } else {
-                                m
-                            }
-                        },
-                    );
-                assert_eq!(first_argmax(&v), first.0, "{v:?}");
+                assert_eq!(first_argmax(&v), first_max(v.clone()).0, "{v:?}");
             }
         }
     }
