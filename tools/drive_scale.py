@@ -14,8 +14,11 @@ over frames that have a pose, so gaps do not count.
 
 `--per-frames N` prints the same ratio for every N frames instead (where along the road the
 scale changes: on KITTI 00_long it steps at the turns' exits), with the ground truth's
-heading change over those frames and, with `--report`, how many of them became keyframes.
-`--self-test` checks both on constructed trajectories and exits.
+heading change over those frames, the angle by which the estimate's rotation over them
+differs from the truth's (where the estimate turns when the camera does not, or turns too
+little) and, with `--report`, how many of them became keyframes. Both forms end with the
+rotation error over the whole run (first to last posed frame). `--self-test` checks them on
+constructed trajectories and exits.
 """
 import argparse
 import json
@@ -37,6 +40,22 @@ def centre(v):
 def heading(v):
     """Degrees of rotation about the camera's y axis."""
     return None if v is None else math.degrees(math.atan2(v[2], v[10]))
+
+
+def rotation(v):
+    """The 3x3 rotation of a 3x4 row-major pose, as rows."""
+    return None if v is None else [v[0:3], v[4:7], v[8:11]]
+
+
+def rotation_error(est, gt, a, b):
+    """Degrees between the estimate's rotation from frame `a` to `b` and the truth's: the
+    angle of (Rg_a^T Rg_b)^T (Re_a^T Re_b)."""
+    def mul_t(p, q):  # p^T q
+        return [[sum(p[k][i] * q[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+    e, g = mul_t(est[a], est[b]), mul_t(gt[a], gt[b])
+    d = mul_t(g, e)
+    c = (d[0][0] + d[1][1] + d[2][2] - 1.0) / 2.0
+    return math.degrees(math.acos(max(-1.0, min(1.0, c))))
 
 
 def posed_frames(est, n, report):
@@ -70,8 +89,9 @@ def first_and_last(est, gt, steps, stretch):
     return ratio(est, gt, take(steps)), ratio(est, gt, take(reversed(steps)))
 
 
-def per_frames(est, gt, heading, steps, n, keyframes=None):
-    """(first frame, ratio, heading change in degrees, keyframes or None) per `n` frames."""
+def per_frames(est, gt, heading, steps, n, keyframes=None, rotations=None):
+    """(first frame, ratio, heading change in degrees, keyframes or None, rotation error in
+    degrees or None) per `n` frames; `rotations`: the (estimated, true) rotations per frame."""
     windows = {}
     for a, b in steps:
         # a step counts in the window it starts in, when it also ends there
@@ -84,7 +104,10 @@ def per_frames(est, gt, heading, steps, n, keyframes=None):
         end = min(start + n, last)
         turn = (heading[end] - heading[start] + 180.0) % 360.0 - 180.0
         kf = None if keyframes is None else sum(1 for k in keyframes if start <= k < start + n)
-        out.append((start, s, turn, kf))
+        rot = None
+        if rotations is not None:
+            rot = rotation_error(*rotations, pairs[0][0], pairs[-1][1])
+        out.append((start, s, turn, kf, rot))
     return out
 
 
@@ -104,6 +127,15 @@ def self_test():
     # a quarter turn to the left over frames 10-20: the heading change of that window
     heading = [0.0] * 10 + [9.0 * k for k in range(11)] + [90.0] * 20
     assert abs(per_frames(est, gt, heading, steps, 10)[1][2] - 90.0) < 1e-12
+    # the estimate turning 0.1 degree a frame about the vertical where the truth goes straight
+    def yawed(deg):
+        c, s_ = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+        return [[c, 0.0, s_], [0.0, 1.0, 0.0], [-s_, 0.0, c]]
+    rot_est = [yawed(0.1 * i) for i in range(41)]
+    rot_gt = [yawed(0.0)] * 41
+    rows = per_frames(est, gt, [0.0] * 41, steps, 10, rotations=(rot_est, rot_gt))
+    assert all(abs(r[4] - 1.0) < 1e-9 for r in rows), rows
+    assert abs(rotation_error(rot_est, rot_gt, 0, 40) - 4.0) < 1e-9
     # a frame without a pose drops its two steps, and the report can drop more
     est[5] = None
     assert posed_frames(est, 41, None) == [i for i in range(41) if i != 5]
@@ -128,7 +160,8 @@ def main():
     if args.per_frames is not None and args.per_frames < 1:
         ap.error(f"--per-frames {args.per_frames}: give a number of frames of at least 1")
     try:
-        est = [centre(v) for v in read_poses(args.estimate)]
+        est_poses = read_poses(args.estimate)
+        est = [centre(v) for v in est_poses]
         gt_poses = read_poses(args.ground_truth)
         gt = [centre(v) for v in gt_poses]
         detail = None
@@ -143,18 +176,25 @@ def main():
     steps = list(zip(posed, posed[1:]))
     total = sum(math.dist(gt[a], gt[b]) for a, b in steps)
     print(f"frames posed {len(posed)} of {n}, true path {total:.0f} m")
+    rotations = ([rotation(v) for v in est_poses], [rotation(v) for v in gt_poses])
     if args.per_frames:
         keyframes = None if detail is None else [d["index"] for d in detail if d.get("keyframe")]
         headings = [heading(v) for v in gt_poses]
-        print("frames      est / true   heading change (deg)"
+        print("frames      est / true   heading change (deg)   rotation error (deg)"
               + ("   keyframes" if keyframes is not None else ""))
-        for start, s, turn, kf in per_frames(est, gt, headings, steps, args.per_frames, keyframes):
-            line = f"{start:5d}-{start + args.per_frames - 1:<5d} {s:10.4f}   {turn:+8.1f}"
+        rows = per_frames(est, gt, headings, steps, args.per_frames, keyframes, rotations)
+        for start, s, turn, kf, rot in rows:
+            line = f"{start:5d}-{start + args.per_frames - 1:<5d} {s:10.4f}   {turn:+8.1f}" \
+                f"               {rot:8.2f}"
             print(line + (f"   {kf:9d}" if kf is not None else ""))
-        return
-    (s0, t0), (s1, t1) = first_and_last(est, gt, steps, args.stretch)
-    print(f"scale first {t0:.0f} m {s0:.4f}, last {t1:.0f} m {s1:.4f}, last / first {s1 / s0:.4f} "
-          f"({100 * (s1 / s0 - 1):+.1f} %)")
+    else:
+        (s0, t0), (s1, t1) = first_and_last(est, gt, steps, args.stretch)
+        print(f"scale first {t0:.0f} m {s0:.4f}, last {t1:.0f} m {s1:.4f}, last / first "
+              f"{s1 / s0:.4f} ({100 * (s1 / s0 - 1):+.1f} %)")
+    if steps:
+        first, last = steps[0][0], steps[-1][1]
+        print(f"rotation error over the run (frames {first}-{last}): "
+              f"{rotation_error(*rotations, first, last):.2f} deg")
 
 
 if __name__ == "__main__":
