@@ -89,9 +89,9 @@ def first_and_last(est, gt, steps, stretch):
     return ratio(est, gt, take(steps)), ratio(est, gt, take(reversed(steps)))
 
 
-def per_frames(est, gt, heading, steps, n, keyframes=None, rotations=None):
+def per_frames(est, gt, heading, rotations, steps, n, keyframes=None):
     """(first frame, ratio, heading change in degrees, keyframes or None, rotation error in
-    degrees or None) per `n` frames; `rotations`: the (estimated, true) rotations per frame."""
+    degrees) per `n` frames; `rotations`: the (estimated, true) rotations per frame."""
     windows = {}
     for a, b in steps:
         # a step counts in the window it starts in, when it also ends there
@@ -104,9 +104,7 @@ def per_frames(est, gt, heading, steps, n, keyframes=None, rotations=None):
         end = min(start + n, last)
         turn = (heading[end] - heading[start] + 180.0) % 360.0 - 180.0
         kf = None if keyframes is None else sum(1 for k in keyframes if start <= k < start + n)
-        rot = None
-        if rotations is not None:
-            rot = rotation_error(*rotations, pairs[0][0], pairs[-1][1])
+        rot = rotation_error(*rotations, pairs[0][0], pairs[-1][1])
         out.append((start, s, turn, kf, rot))
     return out
 
@@ -121,21 +119,20 @@ def self_test():
     steps = list(zip(range(41), range(1, 41)))
     (s0, t0), (s1, t1) = first_and_last(est, gt, steps, 10.0)
     assert abs(s0 - 0.5) < 1e-12 and abs(s1 - 0.6) < 1e-12 and t0 == t1 == 10.0, (s0, s1, t0, t1)
-    rows = per_frames(est, gt, [0.0] * 41, steps, 10, keyframes=[0, 3, 12, 35])
-    assert [round(r[1], 12) for r in rows] == [0.5, 0.5, 0.6, 0.6], rows
-    assert [r[3] for r in rows] == [2, 1, 0, 1], rows
-    # a quarter turn to the left over frames 10-20: the heading change of that window
-    heading = [0.0] * 10 + [9.0 * k for k in range(11)] + [90.0] * 20
-    assert abs(per_frames(est, gt, heading, steps, 10)[1][2] - 90.0) < 1e-12
     # the estimate turning 0.1 degree a frame about the vertical where the truth goes straight
     def yawed(deg):
         c, s_ = math.cos(math.radians(deg)), math.sin(math.radians(deg))
         return [[c, 0.0, s_], [0.0, 1.0, 0.0], [-s_, 0.0, c]]
-    rot_est = [yawed(0.1 * i) for i in range(41)]
-    rot_gt = [yawed(0.0)] * 41
-    rows = per_frames(est, gt, [0.0] * 41, steps, 10, rotations=(rot_est, rot_gt))
+    rotations = ([yawed(0.1 * i) for i in range(41)], [yawed(0.0)] * 41)
+    rows = per_frames(est, gt, [0.0] * 41, rotations, steps, 10, keyframes=[0, 3, 12, 35])
+    assert [round(r[1], 12) for r in rows] == [0.5, 0.5, 0.6, 0.6], rows
+    assert [r[3] for r in rows] == [2, 1, 0, 1], rows
+    # a quarter turn to the left over frames 10-20: the heading change of that window
+    heading = [0.0] * 10 + [9.0 * k for k in range(11)] + [90.0] * 20
+    assert abs(per_frames(est, gt, heading, rotations, steps, 10)[1][2] - 90.0) < 1e-12
+    # the estimate's turn of 1 degree per 10 frames, and of 4 over the whole drive
     assert all(abs(r[4] - 1.0) < 1e-9 for r in rows), rows
-    assert abs(rotation_error(rot_est, rot_gt, 0, 40) - 4.0) < 1e-9
+    assert abs(rotation_error(*rotations, 0, 40) - 4.0) < 1e-9
     # a frame without a pose drops its two steps, and the report can drop more
     est[5] = None
     assert posed_frames(est, 41, None) == [i for i in range(41) if i != 5]
@@ -182,7 +179,7 @@ def main():
         headings = [heading(v) for v in gt_poses]
         print("frames      est / true   heading change (deg)   rotation error (deg)"
               + ("   keyframes" if keyframes is not None else ""))
-        rows = per_frames(est, gt, headings, steps, args.per_frames, keyframes, rotations)
+        rows = per_frames(est, gt, headings, rotations, steps, args.per_frames, keyframes)
         for start, s, turn, kf, rot in rows:
             line = f"{start:5d}-{start + args.per_frames - 1:<5d} {s:10.4f}   {turn:+8.1f}" \
                 f"               {rot:8.2f}"
